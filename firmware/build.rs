@@ -1,0 +1,15 @@
+//! Writes the linker memory map for the bare-metal target only (the host build is a plain library).
+use std::{env, fs, path::PathBuf};
+
+/// mps2-an386 (QEMU): 4 MiB of code memory at 0, 4 MiB of RAM at 0x2000_0000.
+const MEMORY_X: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x00000000, LENGTH = 4M\n  RAM : ORIGIN = 0x20000000, LENGTH = 4M\n}\n";
+
+fn main() {
+    if env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
+        let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+        fs::write(out.join("memory.x"), MEMORY_X).expect("write memory.x");
+        println!("cargo:rustc-link-search={}", out.display());
+        println!("cargo:rustc-link-arg-bins=-Tlink.x");
+    }
+    println!("cargo:rerun-if-changed=build.rs");
+}

@@ -1,0 +1,100 @@
+//! The boot-time smoke computation: one intersection on the paper's rig (Tables 1-4), so a board
+//! shows at once that the shared model runs on it.
+
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
+use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
+use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::rig::{Method, Rig};
+use nalgebra::{convert, Vector3};
+
+/// The id of the smoke dot: Table 4's ray 12.
+pub const RAY: u16 = 12;
+
+/// The paper's camera: Table 1 inner orientation, Table 2's 1st-plane exterior orientation.
+pub fn paper_camera() -> Camera<f64> {
+    Camera {
+        grid: PixelGrid {
+            pixel_size: 0.045,
+            width: 768,
+            height: 512,
+            origin_col: 378.0,
+            origin_row: 252.0,
+        },
+        inner: InnerOrientation {
+            cx: -0.133,
+            cy: 0.208,
+            k1: 0.000063,
+            ..InnerOrientation::ideal(46.981)
+        },
+        exterior: ExteriorOrientation {
+            kappa: 0.013301,
+            phi: 0.01418,
+            omega: -0.02600,
+            centre: Vector3::new(375.121, 364.541, 1842.675),
+        },
+    }
+}
+
+/// The paper's rig in f64: [`paper_camera`], Table 3's projector centre and Table 4's ray 12.
+pub fn paper_rig() -> Rig<f64, [ProjectorRay<f64>; 1]> {
+    let Camera {
+        grid,
+        inner,
+        exterior,
+    } = paper_camera();
+    let ray = ProjectorRay {
+        id: 12,
+        direction: Vector3::new(0.23928, -0.01954, -0.97075).normalize(),
+        offset: Vector3::zeros(),
+    };
+    let projector = Projector::new(Vector3::new(-114.601, 383.502, 1905.981), [ray])
+        .unwrap_or_else(|_| unreachable!("a valid one-ray table"));
+    Rig::new(grid, inner, &exterior, projector)
+}
+
+/// [`paper_rig`] cast to f32 after centring in f64, as an upload does.
+pub fn paper_rig_f32() -> Rig<f32, [ProjectorRay<f32>; 1]> {
+    let rig = paper_rig();
+    let c = |v: f64| -> f32 { convert(v) };
+    let v = |x: Vector3<f64>| x.map(c);
+    let g = rig.grid();
+    let grid = PixelGrid {
+        pixel_size: c(g.pixel_size),
+        width: g.width,
+        height: g.height,
+        origin_col: c(g.origin_col),
+        origin_row: c(g.origin_row),
+    };
+    let p = rig.projector_centred();
+    let rays = [ProjectorRay {
+        id: p.rays()[0].id,
+        direction: v(p.rays()[0].direction),
+        offset: v(p.rays()[0].offset),
+    }];
+    let projector = Projector::new(v(p.centre()), rays)
+        .unwrap_or_else(|_| unreachable!("cast of a valid table"));
+    Rig::from_centred(
+        grid,
+        rig.inner().cast(),
+        rig.r_cam_world().map(c),
+        v(rig.camera_centre()),
+        projector,
+    )
+}
+
+/// The pixel (col, row) where the camera sees ray 12 hit the plate Z = 0 (f64).
+pub fn smoke_pixel() -> Option<(f64, f64)> {
+    let ray = paper_rig().projector_centred().ray(RAY).ok()?;
+    let centre = paper_camera().exterior.centre;
+    let on_plate = ray.at(-(ray.point.z + centre.z) / ray.direction.z) + centre;
+    paper_camera().world_to_pixel(&on_plate).ok()
+}
+
+/// The smoke point in f32 (world mm), or `None` if the geometry were degenerate.
+pub fn smoke_point() -> Option<Vector3<f32>> {
+    let (col, row) = smoke_pixel()?;
+    paper_rig_f32()
+        .reconstruct(RAY, col as f32, row as f32, Method::ClosestApproach)
+        .ok()
+        .map(|hit| hit.point)
+}

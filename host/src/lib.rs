@@ -1,0 +1,3 @@
+//! The deltaz host: the heavy work (calibration, simulation, accuracy assessment) and the link to
+//! the device.
+#![deny(missing_docs)]

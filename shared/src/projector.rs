@@ -1,0 +1,144 @@
+//! The calibrated projector (eq. 5): a perspective centre and a table of rays by id.
+//!
+//! The paper's model is *central*: every ray passes through the centre (X_p, Y_p, Z_p) with
+//! direction cosines (l, m, n). A *non-central* model gives each ray its own point, stored as an
+//! offset from the centre (zero in the central model), so both share one type.
+
+use crate::{lit, Error, Result};
+use nalgebra::{RealField, Vector3};
+
+/// A 3D line: a point on it and a direction (not necessarily unit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray<T: RealField> {
+    /// A point on the line (mm).
+    pub point: Vector3<T>,
+    /// Its direction.
+    pub direction: Vector3<T>,
+}
+
+impl<T: RealField + Copy> Ray<T> {
+    /// Eq. (5): the point at parameter λ: X = X_p + λ (l, m, n).
+    pub fn at(&self, lambda: T) -> Vector3<T> {
+        self.point + self.direction * lambda
+    }
+}
+
+/// One calibrated projector ray.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProjectorRay<T: RealField> {
+    /// The ray's id (the dot's label in the pattern).
+    pub id: u16,
+    /// Direction cosines (l, m, n): a unit vector from the projector towards the scene.
+    pub direction: Vector3<T>,
+    /// The ray passes through centre + offset (mm); zero for the paper's central model.
+    pub offset: Vector3<T>,
+}
+
+/// The projector: a centre and rays sorted by id, in any storage (`[ProjectorRay; N]`, a slice,
+/// `heapless::Vec`, `Vec`): no allocator is needed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Projector<T: RealField, S> {
+    centre: Vector3<T>,
+    rays: S,
+}
+
+impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
+    /// A projector from its centre and its rays, checked: ids strictly increasing, every direction
+    /// finite and of unit length (to 1e-4 relative), every offset finite.
+    pub fn new(centre: Vector3<T>, rays: S) -> Result<Self> {
+        if !centre.iter().all(|c| c.is_finite()) {
+            return Err(Error::NotFinite);
+        }
+        let tol = lit::<T>(1e-4);
+        let mut previous: Option<u16> = None;
+        for ray in rays.as_ref() {
+            if previous.is_some_and(|p| p >= ray.id) {
+                return Err(Error::UnsortedRays);
+            }
+            previous = Some(ray.id);
+            let finite = ray
+                .direction
+                .iter()
+                .chain(ray.offset.iter())
+                .all(|c| c.is_finite());
+            if !finite || (ray.direction.norm() - T::one()).abs() > tol {
+                return Err(Error::InvalidRay(ray.id));
+            }
+        }
+        Ok(Self { centre, rays })
+    }
+
+    /// The perspective centre (X_p, Y_p, Z_p), mm.
+    pub fn centre(&self) -> Vector3<T> {
+        self.centre
+    }
+
+    /// The rays, sorted by id.
+    pub fn rays(&self) -> &[ProjectorRay<T>] {
+        self.rays.as_ref()
+    }
+
+    /// Eq. (5)'s line for a ray id: through centre + offset with direction (l, m, n).
+    pub fn ray(&self, id: u16) -> Result<Ray<T>> {
+        let rays = self.rays.as_ref();
+        let index = rays
+            .binary_search_by_key(&id, |r| r.id)
+            .map_err(|_| Error::UnknownRay(id))?;
+        let ray = &rays[index];
+        Ok(Ray {
+            point: self.centre + ray.offset,
+            direction: ray.direction,
+        })
+    }
+
+    /// The same projector with its centre moved by `shift` (rays unchanged), for example to put
+    /// the origin at the camera's perspective centre.
+    pub fn shifted(self, shift: Vector3<T>) -> Self {
+        Self {
+            centre: self.centre + shift,
+            rays: self.rays,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ray(id: u16, l: f64, m: f64) -> ProjectorRay<f64> {
+        let n = -(1.0 - l * l - m * m).sqrt();
+        ProjectorRay {
+            id,
+            direction: Vector3::new(l, m, n),
+            offset: Vector3::zeros(),
+        }
+    }
+
+    #[test]
+    fn lookup_by_id() {
+        let rays = [
+            ray(1, 0.09159, -0.17179),
+            ray(2, 0.24040, -0.16860),
+            ray(11, 0.09012, -0.02403),
+        ];
+        let p = Projector::new(Vector3::new(-114.601, 383.502, 1905.981), rays).unwrap();
+        let r = p.ray(11).unwrap();
+        assert_eq!(r.direction.x, 0.09012);
+        assert_eq!(r.at(0.0), p.centre());
+        assert_eq!(p.ray(3), Err(Error::UnknownRay(3)));
+    }
+
+    #[test]
+    fn rejects_bad_tables() {
+        let c = Vector3::zeros();
+        assert_eq!(
+            Projector::new(c, [ray(2, 0.1, 0.1), ray(1, 0.1, 0.1)]).err(),
+            Some(Error::UnsortedRays)
+        );
+        let mut bad = ray(5, 0.1, 0.1);
+        bad.direction *= 1.01;
+        assert_eq!(Projector::new(c, [bad]).err(), Some(Error::InvalidRay(5)));
+        bad.direction = Vector3::new(f64::NAN, 0.0, 1.0);
+        assert_eq!(Projector::new(c, [bad]).err(), Some(Error::InvalidRay(5)));
+    }
+}
