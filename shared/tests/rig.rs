@@ -120,7 +120,10 @@ fn f32_agrees_with_f64_within_a_micrometre() {
         }
     }
     assert!(count == 5 * 440, "all dots in view: {count}");
-    eprintln!("f32 vs f64 worst difference over {count} dots: {:.3} µm", worst * 1e3);
+    eprintln!(
+        "f32 vs f64 worst difference over {count} dots: {:.3} µm",
+        worst * 1e3
+    );
     assert!(worst < 1e-3, "f32 differs from f64 by {worst} mm");
 }
 
