@@ -2,3 +2,4 @@
 //! the device.
 #![deny(missing_docs)]
 pub mod compare;
+pub mod projector_calibration;
