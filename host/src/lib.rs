@@ -3,3 +3,4 @@
 #![deny(missing_docs)]
 pub mod compare;
 pub mod projector_calibration;
+pub mod system;
