@@ -2,5 +2,7 @@
 //! the device.
 #![deny(missing_docs)]
 pub mod compare;
+pub mod ply;
 pub mod projector_calibration;
+pub mod reconstruct;
 pub mod system;
