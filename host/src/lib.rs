@@ -5,4 +5,5 @@ pub mod compare;
 pub mod ply;
 pub mod projector_calibration;
 pub mod reconstruct;
+pub mod svg;
 pub mod system;
