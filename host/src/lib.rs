@@ -1,9 +1,12 @@
 //! The deltaz host: the heavy work (calibration, simulation, accuracy assessment) and the link to
 //! the device.
 #![deny(missing_docs)]
+
 pub mod compare;
+pub mod io;
 pub mod ply;
 pub mod projector_calibration;
 pub mod reconstruct;
+pub mod simulate;
 pub mod svg;
 pub mod system;
