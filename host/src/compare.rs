@@ -8,7 +8,7 @@
 //! - Beyond the paper: the absolute errors `reconstructed − reference` with no fit at all, and the
 //!   flatness, the RMS distance of the reconstructed points from their best-fitting plane.
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use deltaz_shared::rotation::{angles_from_matrix, rotation_matrix};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
@@ -137,6 +137,95 @@ pub fn assess(reconstructed: &[Vector3<f64>], reference: &[Vector3<f64>]) -> Res
         absolute_errors,
         flatness_rms: plane_rms(reconstructed)?,
     })
+}
+
+impl Assessment {
+    /// The `--json` form: {kappa, phi, omega, Xc, Yc, Zc, lambda, transformed, residuals,
+    /// mse: [x, y, z], absolute_std: [x, y, z], absolute_mean, flatness_rms}, points labelled.
+    pub fn to_json(&self, labels: &[String]) -> serde_json::Value {
+        let s = &self.similarity;
+        let labelled = |points: &[Vector3<f64>]| -> Vec<serde_json::Value> {
+            labels
+                .iter()
+                .zip(points)
+                .map(|(l, p)| serde_json::json!({"point": l, "X": p.x, "Y": p.y, "Z": p.z}))
+                .collect()
+        };
+        serde_json::json!({
+            "kappa": s.kappa, "phi": s.phi, "omega": s.omega,
+            "Xc": s.translation.x, "Yc": s.translation.y, "Zc": s.translation.z,
+            "lambda": s.scale,
+            "transformed": labelled(&self.transformed),
+            "residuals": labelled(&self.residuals),
+            "mse": [self.mse.x, self.mse.y, self.mse.z],
+            "absolute_std": [self.absolute_std.x, self.absolute_std.y, self.absolute_std.z],
+            "absolute_mean": [self.absolute_mean.x, self.absolute_mean.y, self.absolute_mean.z],
+            "flatness_rms": self.flatness_rms,
+        })
+    }
+
+    /// Tables 6 and 7 as text.
+    pub fn to_text(&self, labels: &[String]) -> String {
+        let s = &self.similarity;
+        let mut out = format!(
+            "Similarity (Table 6): kappa {:.7} phi {:.7} omega {:.7} rad, Xc {:.4} Yc {:.4} Zc {:.4} mm, lambda {:.6}\n\
+             point        X (mm)      Y (mm)      Z (mm)     vX      vY      vZ\n",
+            s.kappa, s.phi, s.omega, s.translation.x, s.translation.y, s.translation.z, s.scale
+        );
+        for ((l, t), v) in labels.iter().zip(&self.transformed).zip(&self.residuals) {
+            out += &format!(
+                "{l:<8} {:>11.3} {:>11.3} {:>11.3} {:>7.3} {:>7.3} {:>7.3}\n",
+                t.x, t.y, t.z, v.x, v.y, v.z
+            );
+        }
+        out += &format!(
+            "MSE (n-1 std of residuals): {:.4} {:.4} {:.4} mm\n\
+             no fit: mean error {:.4} {:.4} {:.4} mm, std {:.4} {:.4} {:.4} mm\n\
+             flatness (RMS from fitted plane): {:.4} mm\n",
+            self.mse.x,
+            self.mse.y,
+            self.mse.z,
+            self.absolute_mean.x,
+            self.absolute_mean.y,
+            self.absolute_mean.z,
+            self.absolute_std.x,
+            self.absolute_std.y,
+            self.absolute_std.z,
+            self.flatness_rms
+        );
+        out
+    }
+}
+
+/// Matches reconstructed points to reference points by label (in the reconstructed order);
+/// a label missing from the reference is an error naming it.
+pub fn match_points(
+    reconstructed: &[(String, Vector3<f64>)],
+    reference: &[(String, Vector3<f64>)],
+) -> Result<Matched> {
+    let lookup: std::collections::HashMap<&str, Vector3<f64>> =
+        reference.iter().map(|(l, p)| (l.as_str(), *p)).collect();
+    let mut matched = Matched::default();
+    for (label, p) in reconstructed {
+        let r = lookup
+            .get(label.as_str())
+            .with_context(|| format!("point {label:?} is not in the reference"))?;
+        matched.labels.push(label.clone());
+        matched.reconstructed.push(*p);
+        matched.reference.push(*r);
+    }
+    Ok(matched)
+}
+
+/// Points matched by label.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Matched {
+    /// The labels.
+    pub labels: Vec<String>,
+    /// Reconstructed points.
+    pub reconstructed: Vec<Vector3<f64>>,
+    /// Their reference points.
+    pub reference: Vec<Vector3<f64>>,
 }
 
 /// Per-axis sqrt(Σ (v − centre)² / (n − 1)).

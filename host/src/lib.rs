@@ -2,6 +2,7 @@
 //! the device.
 #![deny(missing_docs)]
 
+pub mod cli;
 pub mod compare;
 pub mod io;
 pub mod ply;

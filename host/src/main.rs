@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::simulate;
+use deltaz_host::{cli, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -26,6 +26,44 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
+    /// Accuracy assessment (Tables 6-7): 7-parameter similarity, residuals, n−1 std, absolute
+    /// errors with no fit, flatness. Point files are CSV `point,X,Y,Z`, matched by `point`.
+    Compare {
+        /// Reconstructed points.
+        #[arg(long)]
+        reconstructed: PathBuf,
+        /// Reference points.
+        #[arg(long)]
+        reference: PathBuf,
+        /// Print JSON instead of tables.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Reconstruct identified dots (CSV `image,point,col,row[,kind]`, `point` = ray id; with a
+    /// `kind` column only the `dot` rows) into a PLY point cloud.
+    Reconstruct {
+        /// The calibrated system (system.json).
+        #[arg(long)]
+        system: PathBuf,
+        /// Dot observations.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output PLY file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// ASCII PLY instead of binary.
+        #[arg(long)]
+        ascii: bool,
+        /// Image noise (px): adds the propagated σ of every point.
+        #[arg(long)]
+        sigma_px: Option<f64>,
+        /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -48,6 +86,28 @@ fn main() -> anyhow::Result<()> {
                 out.display()
             );
         }
+        Command::Compare {
+            reconstructed,
+            reference,
+            json,
+        } => cli::compare(&reconstructed, &reference, json)?,
+        Command::Reconstruct {
+            system,
+            obs,
+            out,
+            csv,
+            ascii,
+            sigma_px,
+            method,
+        } => cli::reconstruct(&cli::ReconstructArgs {
+            system,
+            obs,
+            out,
+            csv,
+            ascii,
+            sigma_px,
+            method,
+        })?,
     }
     Ok(())
 }

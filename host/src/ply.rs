@@ -3,9 +3,9 @@
 //! Files are written to a temporary file in the target directory and renamed, so a failure never
 //! leaves a partial cloud behind.
 
+use crate::io::atomic::write_atomic;
 use crate::reconstruct::ReconstructedPoint;
-use anyhow::{Context, Result};
-use std::io::Write;
+use anyhow::Result;
 use std::path::Path;
 
 /// PLY body encoding.
@@ -64,35 +64,9 @@ pub fn encode(points: &[ReconstructedPoint], encoding: Encoding) -> Vec<u8> {
     bytes
 }
 
-/// Writes `bytes` to `path` atomically: a temporary file in the same directory, then a rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .with_context(|| format!("{} is not a file path", path.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let written = (|| -> std::io::Result<()> {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written.with_context(|| format!("cannot write {}", path.display()))
-}
-
 /// Writes a point cloud as PLY (atomically).
 pub fn write_ply(path: &Path, points: &[ReconstructedPoint], encoding: Encoding) -> Result<()> {
-    write_atomic(path, &encode(points, encoding))
+    Ok(write_atomic(path, &encode(points, encoding))?)
 }
 
 #[cfg(test)]
