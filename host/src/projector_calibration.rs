@@ -16,6 +16,7 @@
 //! Because every image has its own resected pose, the planes need not be parallel and the
 //! displacement between images need not be known.
 
+use crate::io::observations::{Observation, PointKind};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
@@ -146,6 +147,42 @@ pub fn dot_on_plate(
         bail!("the camera ray through pixel ({col}, {row}) does not meet the plate in front of the camera");
     }
     Ok(camera.exterior.centre + direction * lambda)
+}
+
+/// The plate images of an observation file: for each resected image (in the given order) its
+/// `dot` observations, the plate surface at Z = 0 of the plate frame. A dot label that is not a
+/// ray id names its line; an image without dots is an error.
+pub fn plate_images(
+    observations: &[Observation],
+    poses: &[(String, ExteriorOrientation<f64>)],
+) -> Result<Vec<PlateImage>> {
+    poses
+        .iter()
+        .map(|(image, exterior)| {
+            let dots = observations
+                .iter()
+                .filter(|o| &o.image == image && o.kind == PointKind::Dot)
+                .map(|o| {
+                    let id = o.ray_id().with_context(|| {
+                        format!("line {}: dot label {:?} is not a ray id", o.line, o.point)
+                    })?;
+                    Ok(DotObservation {
+                        id,
+                        col: o.col,
+                        row: o.row,
+                    })
+                })
+                .collect::<Result<Vec<_>>>()?;
+            if dots.is_empty() {
+                bail!("image {image:?} has no projected dots");
+            }
+            Ok(PlateImage {
+                exterior: *exterior,
+                plate: Plane::at_z(0.0),
+                dots,
+            })
+        })
+        .collect()
 }
 
 /// One dot's point on one plane, in the rig frame.
