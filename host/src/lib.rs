@@ -2,5 +2,7 @@
 //! the device.
 #![deny(missing_docs)]
 
+pub mod bundle;
 pub mod io;
+pub mod resection;
 pub mod simulate;
