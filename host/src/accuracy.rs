@@ -38,7 +38,11 @@ pub fn plate_poses(
         &sim.plate_obs,
         &sim.plate_control,
     )
-    .map(|r| r.into_iter().map(|(image, res)| (image, res.exterior)).collect())
+    .map(|r| {
+        r.into_iter()
+            .map(|(image, res)| (image, res.exterior))
+            .collect()
+    })
 }
 
 /// A calibrated system and what went into it.
@@ -124,7 +128,11 @@ pub fn paper_experiment(
         reference.push(on_plate.point);
         floors.push(covariance(&cal.rig, dot, method, sigma_px)?.diagonal());
     }
-    let errors: Vec<_> = reconstructed.iter().zip(&reference).map(|(a, b)| a - b).collect();
+    let errors: Vec<_> = reconstructed
+        .iter()
+        .zip(&reference)
+        .map(|(a, b)| a - b)
+        .collect();
     let fitted = assess(&reconstructed, &reference)?;
     Ok((
         Figures {
@@ -191,7 +199,10 @@ pub fn against_truth(
 /// Figures of a truth comparison; with the honesty ratio RMS(e/σ) over all axes and points.
 pub fn truth_figures(cmp: &[TruthComparison]) -> (Figures, f64) {
     let errors: Vec<_> = cmp.iter().map(|c| c.error).collect();
-    let sigmas: Vec<_> = cmp.iter().map(|c| c.sigma.component_mul(&c.sigma)).collect();
+    let sigmas: Vec<_> = cmp
+        .iter()
+        .map(|c| c.sigma.component_mul(&c.sigma))
+        .collect();
     let ratios: f64 = cmp
         .iter()
         .map(|c| c.error.component_div(&c.sigma).norm_squared())

@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{cli, simulate};
+use deltaz_host::{cli, io, resection, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -64,6 +64,21 @@ enum Command {
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
     },
+    /// Space resection: the exterior orientation of every image from known control.
+    Resect {
+        /// camera.json (or camera_init.json) with the inner orientation.
+        #[arg(long)]
+        camera: PathBuf,
+        /// Observations CSV (image,point,col,row[,kind]); dots are skipped.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Control CSV (point,X,Y,Z,sigma).
+        #[arg(long)]
+        control: PathBuf,
+        /// Also write the poses as JSON ("deltaz.poses/1").
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -108,6 +123,23 @@ fn main() -> anyhow::Result<()> {
             sigma_px,
             method,
         })?,
+        Command::Resect {
+            camera,
+            obs,
+            control,
+            out,
+        } => {
+            let cam = io::camera_file::read_camera(&camera)?;
+            let observations = io::observations::read_observations(&obs)?;
+            let control = io::control::read_control(&control)?;
+            let results =
+                resection::resect_images(&obs, &cam.grid(), &cam.inner(), &observations, &control)?;
+            let poses = resection::PosesFile::new(&results);
+            print!("{}", poses.table());
+            if let Some(out) = out {
+                io::atomic::write_json_atomic(&out, &poses)?;
+            }
+        }
     }
     Ok(())
 }

@@ -178,6 +178,9 @@ pub struct Station {
     /// σ of each pose parameter.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma: Option<PoseParams>,
+    /// A posteriori σ0 of this image's resection (mm), when resected alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma0: Option<f64>,
     /// Residual RMS of this image (px).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rms_px: Option<f64>,
@@ -345,6 +348,7 @@ mod tests {
             image: "s1".into(),
             pose: PoseParams::from_array([0.1, 0.2, 0.3, 1.0, 2.0, 3.0]),
             sigma: None,
+            sigma0: None,
             rms_px: Some(0.5),
             observations: Some(48),
         });

@@ -277,6 +277,7 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
                 image: image.clone(),
                 pose: PoseParams::from(*eo),
                 sigma: None,
+                sigma0: None,
                 rms_px: None,
                 observations: None,
             })
