@@ -11,9 +11,9 @@ use crate::compare::{assess, sample_std_about};
 use crate::projector_calibration::{
     calibrate_projector, plane_points, plate_images, Model, PlateImage, ProjectorCalibration,
 };
-use crate::reconstruct::{covariance, reconstruct};
+use crate::reconstruct::{calibration_covariance, covariance, reconstruct};
 use crate::simulate::Simulation;
-use crate::system::{SystemContent, SystemRig};
+use crate::system::{RayCovariances, SystemContent, SystemRig};
 use anyhow::{Context, Result};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
@@ -115,7 +115,7 @@ pub fn paper_experiment(
     let inner = *cal.rig.inner();
     let by_ray = plane_points(&grid, &inner, &cal.images[..cal.used], sigma_px)?;
     let dots = &cal.images[image].dots;
-    let points = reconstruct(&cal.rig, dots, method, None)?;
+    let points = reconstruct(&cal.rig, dots, method, None, None)?;
     let mut reconstructed = Vec::new();
     let mut reference = Vec::new();
     let mut floors = Vec::new();
@@ -149,14 +149,17 @@ pub fn paper_experiment(
 pub struct TruthComparison {
     /// Error vector (camera system, mm).
     pub error: Vector3<f64>,
-    /// Propagated σ per camera axis (mm).
+    /// Propagated σ per camera axis from image noise alone: the floor (mm).
+    pub floor: Vector3<f64>,
+    /// Propagated σ per camera axis from image noise and calibration (mm).
     pub sigma: Vector3<f64>,
     /// The true point (camera system, mm).
     pub truth: Vector3<f64>,
 }
 
 /// The dots of plate image `image` reconstructed and compared with the true points where the
-/// true rays meet the true plate, in the camera system; σ from image noise `sigma_px`.
+/// true rays meet the true plate, in the camera system; σ from the simulation's image noise,
+/// alone (the floor) and with the calibration's share.
 pub fn against_truth(
     sim: &Simulation,
     cal: &Calibrated,
@@ -173,7 +176,8 @@ pub fn against_truth(
     let centre = Vector3::from(projector.centre_camera);
     let r = *cal.rig.r_cam_world();
     let dots = &cal.images[image].dots;
-    let points = reconstruct(&cal.rig, dots, method, None)?;
+    let points = reconstruct(&cal.rig, dots, method, None, None)?;
+    let lines: RayCovariances = cal.projector.rays.iter().map(|r| (r.id, r.line_cov)).collect();
     dots.iter()
         .zip(&points)
         .map(|(dot, p)| {
@@ -186,10 +190,13 @@ pub fn against_truth(
             let dir = Vector3::from(ray.camera);
             let truth = start + dir * ((d - normal.dot(&start)) / normal.dot(&dir));
             let cam = r * (p.point - cal.rig.camera_centre());
-            let cov = covariance(&cal.rig, dot, method, sigma_px)?;
+            let image_cov = covariance(&cal.rig, dot, method, sigma_px)?;
+            let line = lines.get(&dot.id).context("ray without covariance")?;
+            let cal_cov = calibration_covariance(&cal.rig, dot, method, p.point, line)?;
             Ok(TruthComparison {
                 error: cam - truth,
-                sigma: camera_axes(&r, &cov),
+                floor: camera_axes(&r, &image_cov),
+                sigma: camera_axes(&r, &(image_cov + cal_cov)),
                 truth,
             })
         })
@@ -201,7 +208,7 @@ pub fn truth_figures(cmp: &[TruthComparison]) -> (Figures, f64) {
     let errors: Vec<_> = cmp.iter().map(|c| c.error).collect();
     let sigmas: Vec<_> = cmp
         .iter()
-        .map(|c| c.sigma.component_mul(&c.sigma))
+        .map(|c| c.floor.component_mul(&c.floor))
         .collect();
     let ratios: f64 = cmp
         .iter()

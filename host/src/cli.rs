@@ -100,11 +100,12 @@ pub fn dot_observations(path: &Path, obs: &[Observation]) -> Result<Vec<(String,
 
 /// `deltaz reconstruct`: everything is computed before anything is written.
 pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
-    let (_, rig) = SystemFile::load(&args.system)?;
+    let (system, rig) = SystemFile::load(&args.system)?;
+    let calibration = system.line_covariances();
     let obs = read_observations(&args.obs)?;
     let dots = dot_observations(&args.obs, &obs)?;
     let plain: Vec<DotObservation> = dots.iter().map(|(_, d)| *d).collect();
-    let points = reconstruct_points(&rig, &plain, args.method.into(), args.sigma_px)
+    let points = reconstruct_points(&rig, &plain, args.method.into(), args.sigma_px, Some(&calibration))
         .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
     let csv = args.csv.as_ref().map(|_| {
         let mut text = String::from("image,point,X,Y,Z,miss");

@@ -92,6 +92,39 @@ pub struct CalibratedRay {
     pub miss_rms: f64,
     /// Largest miss distance (mm).
     pub miss_max: f64,
+    /// The ray's lateral uncertainty from the image noise of its plane points, as a free line
+    /// X(Z) = X(Z_p) + (Z − Z_p) a (likewise Y): [var X(Z_p), cov, var a] for X then for Y
+    /// (mm², mm, 1). See [`LineCovariance`].
+    pub line_cov: LineCovariance,
+}
+
+/// The covariance of a ray's lateral position as a free line fitted to its plane points:
+/// per axis (X, Y) the 2 × 2 covariance of its value at the centre's Z and its slope dX/dZ,
+/// stored as [var, cov, var_slope]. For the central models it is an upper bound (the centre
+/// constraint only helps).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct LineCovariance(pub [[f64; 3]; 2]);
+
+impl LineCovariance {
+    /// The variance of the ray's X and Y at a height dz = Z − Z_p above the centre (mm²).
+    pub fn lateral_variance(&self, dz: f64) -> [f64; 2] {
+        self.0.map(|[v, c, s]| v + 2.0 * dz * c + dz * dz * s)
+    }
+}
+
+/// The free-line covariance of a ray from its points (weights 1/σ²), see [`LineCovariance`].
+pub fn line_covariance(centre_z: f64, points: &[PlanePoint]) -> LineCovariance {
+    let (mut sw, mut sx, mut sxx) = (0.0, 0.0, 0.0);
+    for p in points {
+        let w = 1.0 / (p.sigma * p.sigma);
+        let x = p.point.z - centre_z;
+        sw += w;
+        sx += w * x;
+        sxx += w * x * x;
+    }
+    let det = sw * sxx - sx * sx;
+    let one = [sxx / det, -sx / det, sw / det];
+    LineCovariance([one, one])
 }
 
 /// The calibrated projector in the rig frame.
@@ -495,6 +528,7 @@ pub fn calibrate_projector(
                 planes: pts.len(),
                 miss_rms,
                 miss_max: misses.iter().copied().fold(0.0, f64::max),
+                line_cov: line_covariance(centre.z, pts),
             }
         })
         .collect();

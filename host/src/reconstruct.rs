@@ -2,11 +2,14 @@
 //! crate's rig (f64), with the miss distance of the two rays and, on request, σ by first-order
 //! propagation of the image noise: Σ_X = σ² J Jᵀ with J = ∂X/∂(col, row) (central differences).
 //! With the calibration taken as exact this σ is the *image-noise floor* of each point: what one
-//! measurement carries however good the calibration is.
+//! measurement carries however good the calibration is. The calibration's share comes from each
+//! ray's line covariance (see [`calibration_covariance`]).
 
 use crate::projector_calibration::DotObservation;
-use crate::system::SystemRig;
+use crate::projector_calibration::LineCovariance;
+use crate::system::{RayCovariances, SystemRig};
 use anyhow::{Context, Result};
+use deltaz_shared::intersection::{closest_approach, intersect_paper};
 use deltaz_shared::rig::Method;
 use nalgebra::{Matrix3, Matrix3x2, Vector3};
 
@@ -23,13 +26,15 @@ pub struct ReconstructedPoint {
     pub sigma: Option<Vector3<f64>>,
 }
 
-/// Reconstructs every observation; `image_sigma_px` (pixels) turns on the σ propagation.
+/// Reconstructs every observation; `image_sigma_px` (pixels) turns on the σ propagation, to
+/// which `calibration` (the rays' line covariances) adds the calibration's share.
 /// An unknown ray or a degenerate intersection names the observation.
 pub fn reconstruct(
     rig: &SystemRig,
     dots: &[DotObservation],
     method: Method,
     image_sigma_px: Option<f64>,
+    calibration: Option<&RayCovariances>,
 ) -> Result<Vec<ReconstructedPoint>> {
     dots.iter()
         .enumerate()
@@ -47,7 +52,13 @@ pub fn reconstruct(
                     )
                 })?;
             let sigma = match image_sigma_px {
-                Some(s) => Some(covariance(rig, dot, method, s)?.diagonal().map(f64::sqrt)),
+                Some(s) => {
+                    let mut cov = covariance(rig, dot, method, s)?;
+                    if let Some(line) = calibration.and_then(|c| c.get(&dot.id)) {
+                        cov += calibration_covariance(rig, dot, method, hit.point, line)?;
+                    }
+                    Some(cov.diagonal().map(f64::sqrt))
+                }
                 None => None,
             };
             Ok(ReconstructedPoint {
@@ -71,6 +82,42 @@ pub fn jacobian(rig: &SystemRig, dot: &DotObservation, method: Method) -> Result
     let d_col = (at(h, 0.0)? - at(-h, 0.0)?) / (2.0 * h);
     let d_row = (at(0.0, h)? - at(0.0, -h)?) / (2.0 * h);
     Ok(Matrix3x2::from_columns(&[d_col, d_row]))
+}
+
+/// The calibration's share of a point's covariance: the projector ray shifted sideways (X, Y of
+/// the rig frame) by its [`LineCovariance`] at the point's height, J_r diag(var X, var Y) J_rᵀ with
+/// J_r = ∂point/∂shift by central differences (0.01 mm).
+pub fn calibration_covariance(
+    rig: &SystemRig,
+    dot: &DotObservation,
+    method: Method,
+    point: Vector3<f64>,
+    line: &LineCovariance,
+) -> Result<Matrix3<f64>> {
+    let projector = rig
+        .projector_centred()
+        .ray(dot.id)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let camera = rig.camera_ray(dot.col, dot.row);
+    let centre_z = rig.projector_centred().centre().z + rig.camera_centre().z;
+    let variance = line.lateral_variance(point.z - centre_z);
+    let h = 0.01;
+    let mut cov = Matrix3::zeros();
+    for (axis, var) in variance.iter().enumerate() {
+        let at = |shift: f64| -> Result<Vector3<f64>> {
+            let mut ray = projector;
+            ray.point[axis] += shift;
+            let hit = match method {
+                Method::Paper => intersect_paper(&camera, &ray),
+                Method::ClosestApproach => closest_approach(&camera, &ray),
+            };
+            hit.map(|h| h.point)
+                .map_err(|e| anyhow::anyhow!("ray {}: {e}", dot.id))
+        };
+        let column = (at(h)? - at(-h)?) / (2.0 * h);
+        cov += column * column.transpose() * *var;
+    }
+    Ok(cov)
 }
 
 /// Σ_X = σ² J Jᵀ for isotropic image noise σ (pixels).
@@ -141,7 +188,7 @@ mod tests {
             truth.push(x);
         }
         for method in [Method::Paper, Method::ClosestApproach] {
-            let pts = reconstruct(&rig, &dots, method, Some(0.5)).unwrap();
+            let pts = reconstruct(&rig, &dots, method, Some(0.5), None).unwrap();
             for (p, x) in pts.iter().zip(&truth) {
                 assert!((p.point - x).norm() < 1e-6 && p.miss < 1e-6);
                 let s = p.sigma.unwrap();
@@ -157,7 +204,7 @@ mod tests {
             col: 1.0,
             row: 2.0,
         }];
-        let err = reconstruct(&rig, &unknown, Method::Paper, None).unwrap_err();
+        let err = reconstruct(&rig, &unknown, Method::Paper, None, None).unwrap_err();
         assert!(
             format!("{err:#}").contains("observation 1 (ray 7"),
             "{err:#}"

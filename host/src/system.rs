@@ -8,7 +8,7 @@
 //! which calibration measured a frame. Loading checks the format, the fingerprint, finite numbers,
 //! unit direction cosines and unique ray ids, and builds a [`SystemRig`].
 
-use crate::projector_calibration::{CalibratedRay, Model, ProjectorCalibration};
+use crate::projector_calibration::{CalibratedRay, LineCovariance, Model, ProjectorCalibration};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
@@ -23,6 +23,9 @@ pub const FORMAT: &str = "deltaz.system/1";
 
 /// The rig the device link uploads: f64, rays in a `Vec`.
 pub type SystemRig = Rig<f64, Vec<ProjectorRay<f64>>>;
+
+/// Calibration covariances of the rays by id, with the centre's Z they refer to.
+pub type RayCovariances = std::collections::BTreeMap<u16, LineCovariance>;
 
 /// The camera pose in the rig frame (eq. 3): κ, φ, ω (rad) and X0, Y0, Z0 (mm).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -90,6 +93,9 @@ pub struct SystemRay {
     pub miss_rms: f64,
     /// Largest miss distance (mm).
     pub miss_max: f64,
+    /// The ray's lateral covariance from calibration (for σ of reconstructed points).
+    #[serde(default)]
+    pub line_cov: LineCovariance,
 }
 
 /// The projector part of the system.
@@ -238,6 +244,7 @@ impl From<&CalibratedRay> for SystemRay {
             planes: r.planes,
             miss_rms: r.miss_rms,
             miss_max: r.miss_max,
+            line_cov: r.line_cov,
         }
     }
 }
@@ -285,6 +292,16 @@ impl SystemFile {
         Self::parse(&text, &path.display().to_string())
     }
 
+    /// Each ray's calibration covariance by id, for [`crate::reconstruct`].
+    pub fn line_covariances(&self) -> RayCovariances {
+        self.content
+            .projector
+            .rays
+            .iter()
+            .map(|r| (r.id, r.line_cov))
+            .collect()
+    }
+
     /// Pretty JSON text.
     pub fn to_json(&self) -> Result<String> {
         Ok(serde_json::to_string_pretty(self)? + "\n")
@@ -310,6 +327,7 @@ mod tests {
             planes: 3,
             miss_rms: 0.1,
             miss_max: 0.2,
+            line_cov: LineCovariance([[0.1, -1e-4, 1e-7]; 2]),
         };
         let projector = ProjectorCalibration {
             model: Model::Paper,
