@@ -177,7 +177,12 @@ pub fn against_truth(
     let r = *cal.rig.r_cam_world();
     let dots = &cal.images[image].dots;
     let points = reconstruct(&cal.rig, dots, method, None, None)?;
-    let lines: RayCovariances = cal.projector.rays.iter().map(|r| (r.id, r.line_cov)).collect();
+    let lines: RayCovariances = cal
+        .projector
+        .rays
+        .iter()
+        .map(|r| (r.id, r.line_cov))
+        .collect();
     dots.iter()
         .zip(&points)
         .map(|(dot, p)| {

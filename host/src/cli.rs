@@ -105,8 +105,14 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
     let obs = read_observations(&args.obs)?;
     let dots = dot_observations(&args.obs, &obs)?;
     let plain: Vec<DotObservation> = dots.iter().map(|(_, d)| *d).collect();
-    let points = reconstruct_points(&rig, &plain, args.method.into(), args.sigma_px, Some(&calibration))
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
+    let points = reconstruct_points(
+        &rig,
+        &plain,
+        args.method.into(),
+        args.sigma_px,
+        Some(&calibration),
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
     let csv = args.csv.as_ref().map(|_| {
         let mut text = String::from("image,point,X,Y,Z,miss");
         if args.sigma_px.is_some() {
