@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{cli, io, resection, simulate};
+use deltaz_host::{bundle, cli, io, resection, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -79,6 +79,57 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Calibration steps.
+    Calibrate {
+        #[command(subcommand)]
+        what: CalibrateWhat,
+    },
+    /// Timings: camera calibration of the paper scenario and of a large network.
+    Bench {
+        /// Images of the large network.
+        #[arg(long, default_value_t = 200)]
+        images: u32,
+        /// Targets of the large network.
+        #[arg(long, default_value_t = 1000)]
+        targets: u32,
+    },
+}
+
+#[derive(Subcommand)]
+enum CalibrateWhat {
+    /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
+    Camera {
+        /// The starting sensor: camera_init.json (pixel mapping, approximate f).
+        #[arg(long)]
+        init: PathBuf,
+        /// Target observations CSV.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Control CSV (point,X,Y,Z,sigma).
+        #[arg(long)]
+        control: PathBuf,
+        /// Output camera.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also estimate k2.
+        #[arg(long)]
+        k2: bool,
+        /// Also estimate k3.
+        #[arg(long)]
+        k3: bool,
+        /// Also estimate p1.
+        #[arg(long)]
+        p1: bool,
+        /// Also estimate p2.
+        #[arg(long)]
+        p2: bool,
+        /// Free network: control only gives approximate values; minimal constraints.
+        #[arg(long)]
+        free_network: bool,
+        /// A priori σ of image coordinates (px), weighting control against images.
+        #[arg(long, default_value_t = 0.5)]
+        image_sigma_px: f64,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -138,6 +189,61 @@ fn main() -> anyhow::Result<()> {
             print!("{}", poses.table());
             if let Some(out) = out {
                 io::atomic::write_json_atomic(&out, &poses)?;
+            }
+        }
+        Command::Calibrate {
+            what:
+                CalibrateWhat::Camera {
+                    init,
+                    obs,
+                    control,
+                    out,
+                    k2,
+                    k3,
+                    p1,
+                    p2,
+                    free_network,
+                    image_sigma_px,
+                },
+        } => {
+            let mut options = bundle::CalibrationOptions {
+                free_network,
+                image_sigma_px,
+                ..Default::default()
+            };
+            for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
+                options.free.inner[k] |= on;
+            }
+            let file = bundle::calibrate_files(&init, &obs, &control, &out, &options)?;
+            print!("{}", bundle::summary(&file, &options.free));
+        }
+        Command::Bench { images, targets } => {
+            for scenario in [
+                simulate::Scenario::paper(),
+                simulate::Scenario::large(images, targets),
+            ] {
+                let sim = simulate::simulate(&scenario, 1);
+                let options = bundle::CalibrationOptions::default();
+                let start = std::time::Instant::now();
+                let problem = bundle::build_problem(
+                    std::path::Path::new("simulated"),
+                    &sim.camera_init.grid(),
+                    &sim.camera_init.inner(),
+                    &sim.camera_obs,
+                    &sim.camera_control,
+                    &options,
+                )?;
+                let cal = bundle::calibrate(problem, &options)?;
+                println!(
+                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm",
+                    scenario.name,
+                    cal.problem.images.len(),
+                    cal.problem.xyz.len(),
+                    sim.camera_obs.len(),
+                    start.elapsed().as_secs_f64(),
+                    cal.iterations,
+                    cal.solution.sigma0
+                );
             }
         }
     }
