@@ -3,11 +3,16 @@
 
 use crate::compare::{assess, match_points};
 use crate::io::atomic::write_atomic;
+use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
 use crate::ply::{write_ply, Encoding};
-use crate::projector_calibration::DotObservation;
+use crate::projector_calibration::{
+    calibrate_projector as calibrate_projector_images, plate_images, DotObservation, Model,
+};
 use crate::reconstruct::reconstruct as reconstruct_points;
+use crate::resection::resect_images;
+use crate::system::SystemContent;
 use crate::system::SystemFile;
 use anyhow::{bail, Result};
 use deltaz_shared::rig::Method;
@@ -141,5 +146,51 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
         write_atomic(path, text.as_bytes())?;
     }
     println!("{} points -> {}", points.len(), args.out.display());
+    Ok(())
+}
+
+/// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
+/// system.json written atomically only when everything succeeded.
+pub fn calibrate_projector(
+    camera: &Path,
+    control: &Path,
+    obs: &Path,
+    out: &Path,
+    model: Model,
+    image_sigma_px: f64,
+) -> Result<()> {
+    let camera = read_camera(camera)?;
+    let (grid, inner) = (camera.grid(), camera.inner());
+    let control_points = read_control(control)?;
+    let observations = read_observations(obs)?;
+    let poses: Vec<_> = resect_images(obs, &grid, &inner, &observations, &control_points)?
+        .into_iter()
+        .map(|(image, r)| (image, r.exterior))
+        .collect();
+    let images = plate_images(&observations, &poses)
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
+    let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
+    let content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+    content.rig()?;
+    let file = SystemFile::new(content)?;
+    write_atomic(out, file.to_json()?.as_bytes())?;
+    let worst = projector
+        .rays
+        .iter()
+        .max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
+    println!(
+        "{:?} model: centre {:.3?} mm (σ {:.3?}), {} rays{}; fingerprint {} -> {}",
+        model,
+        projector.centre.as_slice(),
+        projector.centre_sigma.as_slice(),
+        projector.rays.len(),
+        worst.map_or(String::new(), |w| format!(
+            ", worst ray {} misses its plane points by {:.3} mm RMS",
+            w.id, w.miss_rms
+        )),
+        file.fingerprint,
+        out.display()
+    );
     Ok(())
 }

@@ -97,6 +97,29 @@ enum Command {
 
 #[derive(Subcommand)]
 enum CalibrateWhat {
+    /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
+    /// writes system.json ("deltaz.system/1").
+    Projector {
+        /// camera.json (inner orientation and pixel mapping).
+        #[arg(long)]
+        camera: PathBuf,
+        /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
+        #[arg(long)]
+        control: PathBuf,
+        /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
+        /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output system.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
+        #[arg(long, default_value = "paper")]
+        model: deltaz_host::projector_calibration::Model,
+        /// Image noise (px) weighting the plane points and giving the rays' covariances.
+        #[arg(long, default_value_t = 0.5)]
+        image_sigma_px: f64,
+    },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
     Camera {
         /// The starting sensor: camera_init.json (pixel mapping, approximate f).
@@ -191,6 +214,17 @@ fn main() -> anyhow::Result<()> {
                 io::atomic::write_json_atomic(&out, &poses)?;
             }
         }
+        Command::Calibrate {
+            what:
+                CalibrateWhat::Projector {
+                    camera,
+                    control,
+                    obs,
+                    out,
+                    model,
+                    image_sigma_px,
+                },
+        } => cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?,
         Command::Calibrate {
             what:
                 CalibrateWhat::Camera {
