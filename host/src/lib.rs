@@ -7,6 +7,7 @@ pub mod bundle;
 pub mod cli;
 pub mod compare;
 pub mod io;
+pub mod link;
 pub mod ply;
 pub mod projector_calibration;
 pub mod reconstruct;
