@@ -8,7 +8,8 @@ use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
 use crate::ply::{write_ply, Encoding};
 use crate::projector_calibration::{
-    calibrate_projector as calibrate_projector_images, plate_images, DotObservation, Model,
+    calibrate_projector as calibrate_projector_images, check_raised_control, plate_images,
+    DotObservation, Model,
 };
 use crate::reconstruct::reconstruct as reconstruct_points;
 use crate::resection::resect_images;
@@ -162,6 +163,11 @@ pub fn calibrate_projector(
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
     let control_points = read_control(control)?;
+    let labelled: Vec<_> = control_points
+        .iter()
+        .map(|c| (c.point.clone(), c.xyz))
+        .collect();
+    check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
     let poses: Vec<_> = resect_images(obs, &grid, &inner, &observations, &control_points)?
         .into_iter()

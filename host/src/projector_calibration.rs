@@ -182,6 +182,30 @@ pub fn dot_on_plate(
     Ok(camera.exterior.centre + direction * lambda)
 }
 
+/// The plate's control must not be coplanar: without raised points (more than 1 mm off the
+/// best-fitting plane) the resection of each image leaves the plate's tilt and distance weakly
+/// determined (section 3.2: 6 of the paper's 20 points stand 200 mm off the plate).
+pub fn check_raised_control(control: &[(String, Vector3<f64>)]) -> Result<()> {
+    let points: Vec<Vector3<f64>> = control.iter().map(|(_, p)| *p).collect();
+    let mean = points.iter().sum::<Vector3<f64>>() / points.len().max(1) as f64;
+    let centred: Vec<_> = points.iter().map(|p| p - mean).collect();
+    let scatter: Matrix3<f64> = centred.iter().map(|v| v * v.transpose()).sum();
+    let eigen = scatter.symmetric_eigen();
+    let (k, _) = eigen.eigenvalues.argmin();
+    let normal = eigen.eigenvectors.column(k);
+    let off = centred
+        .iter()
+        .map(|v| v.dot(&normal).abs())
+        .fold(0.0, f64::max);
+    if points.len() < 4 || off < 1.0 {
+        bail!(
+            "the plate's control points are coplanar (largest distance from their plane {off:.3} mm): \
+             add raised control points"
+        );
+    }
+    Ok(())
+}
+
 /// The plate images of an observation file: for each resected image (in the given order) its
 /// `dot` observations, the plate surface at Z = 0 of the plate frame. A dot label that is not a
 /// ray id names its line; an image without dots is an error.
@@ -736,6 +760,22 @@ mod tests {
                 cal.centre
             );
         }
+    }
+
+    #[test]
+    fn coplanar_control_is_an_error() {
+        let mut control: Vec<(String, Vector3<f64>)> = (0..12)
+            .map(|k| {
+                (
+                    format!("C{k}"),
+                    Vector3::new(f64::from(k % 4) * 190.0, f64::from(k / 4) * 280.0, 0.0),
+                )
+            })
+            .collect();
+        let err = check_raised_control(&control).unwrap_err();
+        assert!(err.to_string().contains("coplanar"), "{err}");
+        control[5].1.z = 200.0;
+        check_raised_control(&control).unwrap();
     }
 
     #[test]
