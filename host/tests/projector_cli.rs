@@ -104,7 +104,10 @@ fn calibrate_then_reconstruct() {
     let mean_z = rows.iter().map(|r| r[3]).sum::<f64>() / rows.len() as f64;
     assert!((mean_z - 200.0).abs() < 3.0, "mean Z {mean_z}");
     let worst = rows.iter().map(|r| r[7]).fold(0.0, f64::max);
-    assert!(rows.iter().all(|r| r[7] > 0.3) && worst < 2.0, "σZ up to {worst}");
+    assert!(
+        rows.iter().all(|r| r[7] > 0.3) && worst < 2.0,
+        "σZ up to {worst}"
+    );
     let ply = std::fs::read_to_string(d.join("cloud.ply")).unwrap();
     assert!(ply.contains("element vertex 440\n") && ply.contains("property double sigma_z\n"));
 }
