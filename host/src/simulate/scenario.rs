@@ -153,14 +153,14 @@ impl Scenario {
                 init_f: 46.0,
             },
             field: FieldSpec {
-                size: [1000.0, 700.0],
+                size: [900.0, 650.0],
                 grid: [8, 6],
                 relief: 400.0,
                 control_sigma: 0.1,
             },
             stations: StationsSpec {
                 count: 9,
-                distance: 2300.0,
+                distance: 1900.0,
                 convergence: 0.45,
                 rolls: vec![0.0, std::f64::consts::FRAC_PI_2],
             },
