@@ -264,8 +264,13 @@ fn reduce(normal: &Normal, mu: f64) -> Result<Reduced, SolveError> {
         let yg = &y * g_p;
         for (a, &ra) in rows.iter().enumerate() {
             b[ra] -= yg[a];
-            for (c, &rc) in rows.iter().enumerate() {
-                s[(ra, rc)] -= ywt[(a, c)];
+        }
+        // Column by column: both matrices are column-major.
+        for (c, &rc) in rows.iter().enumerate() {
+            let from = ywt.column(c);
+            let mut to = s.column_mut(rc);
+            for (a, &ra) in rows.iter().enumerate() {
+                to[ra] -= from[a];
             }
         }
         v_inv.push(vi);

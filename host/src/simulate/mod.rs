@@ -161,7 +161,8 @@ impl Noise {
     }
 }
 
-/// Simulates a scenario with a seed: deterministic for a given (scenario, seed).
+/// Simulates a scenario with a seed: deterministic for a given (scenario, seed). The scenario
+/// must pass [`Scenario::validate`] (files are validated when read).
 pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
     let (grid, inner) = true_camera(scenario);
     let mut noise = Noise {
@@ -454,6 +455,7 @@ mod tests {
 
     #[test]
     fn example_scenarios_parse_and_see_every_dot() {
+        Scenario::paper().validate().unwrap();
         for name in ["modern_12mp", "desk_rig"] {
             let path = format!("{}/scenarios/{name}.toml", env!("CARGO_MANIFEST_DIR"));
             let s = load_scenario(&path).unwrap();
@@ -470,7 +472,14 @@ mod tests {
             );
         }
         let e = Scenario::from_toml("name = 'x'\n[camera]\nbogus = 1\n").unwrap_err();
-        assert!(e.to_string().contains("bogus") || e.to_string().contains("missing"));
+        assert!(e.to_string().contains("bogus"), "{e}");
+        let text = std::fs::read_to_string(format!(
+            "{}/scenarios/desk_rig.toml",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap();
+        let e = Scenario::from_toml(&text.replace("cols = 22", "cols = 120")).unwrap_err();
+        assert!(e.to_string().contains("at most 100 columns"), "{e}");
     }
 
     #[test]

@@ -153,14 +153,14 @@ impl Scenario {
                 init_f: 46.0,
             },
             field: FieldSpec {
-                size: [1000.0, 700.0],
+                size: [900.0, 650.0],
                 grid: [8, 6],
                 relief: 400.0,
                 control_sigma: 0.1,
             },
             stations: StationsSpec {
                 count: 9,
-                distance: 2300.0,
+                distance: 1900.0,
                 convergence: 0.45,
                 rolls: vec![0.0, std::f64::consts::FRAC_PI_2],
             },
@@ -183,9 +183,48 @@ impl Scenario {
         }
     }
 
-    /// A scenario from TOML text.
-    pub fn from_toml(text: &str) -> Result<Self, toml::de::Error> {
-        toml::from_str(text)
+    /// A scenario from TOML text, validated.
+    pub fn from_toml(text: &str) -> anyhow::Result<Self> {
+        let scenario: Scenario = toml::from_str(text)?;
+        scenario.validate()?;
+        Ok(scenario)
+    }
+
+    /// Checks what [`super::simulate`] relies on: a positive pixel size and focal length, at
+    /// least one plate image and one station, a field grid of at least 2 × 2, ray ids that fit
+    /// row·100 + col (at most 100 columns, 655 rows), σ ≥ 0 and an outlier rate in 0..1.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        let c = &self.camera;
+        anyhow::ensure!(c.pixel_size > 0.0, "camera.pixel_size must be positive");
+        anyhow::ensure!(
+            c.inner.f > 0.0 && c.init_f > 0.0,
+            "camera f and init_f must be positive"
+        );
+        anyhow::ensure!(!self.plate.images.is_empty(), "plate.images is empty");
+        anyhow::ensure!(
+            self.stations.count >= 1,
+            "stations.count must be at least 1"
+        );
+        anyhow::ensure!(
+            self.field.grid.iter().all(|n| *n >= 2),
+            "field.grid must be at least [2, 2]"
+        );
+        let p = &self.rig.pattern;
+        anyhow::ensure!(
+            p.cols <= 100 && p.rows <= 655,
+            "rig.pattern: ids are row*100 + col, so at most 100 columns and 655 rows"
+        );
+        anyhow::ensure!(
+            self.noise.image_sigma_px >= 0.0
+                && self.field.control_sigma >= 0.0
+                && self.plate.control_sigma >= 0.0,
+            "noise and control σ must not be negative"
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.noise.outlier_rate),
+            "noise.outlier_rate must lie in 0..1"
+        );
+        Ok(())
     }
 }
 
