@@ -12,7 +12,7 @@ mod serial;
 
 pub use calibration::calibration_blob;
 pub use client::{Device, DeviceError, WorldPoint, DEFAULT_TIMEOUT};
-pub use in_process::InProcess;
+pub use in_process::{InProcess, InProcessFlash};
 pub use qemu::Qemu;
 pub use serial::{list_ports, Serial};
 
