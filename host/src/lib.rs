@@ -2,4 +2,16 @@
 //! the device.
 #![deny(missing_docs)]
 
+pub mod accuracy;
+pub mod bundle;
+pub mod cli;
+pub mod compare;
+pub mod io;
 pub mod link;
+pub mod ply;
+pub mod projector_calibration;
+pub mod reconstruct;
+pub mod resection;
+pub mod simulate;
+pub mod svg;
+pub mod system;
