@@ -6,6 +6,7 @@ pub mod accuracy;
 pub mod bundle;
 pub mod cli;
 pub mod compare;
+pub mod device_cli;
 pub mod io;
 pub mod link;
 pub mod ply;

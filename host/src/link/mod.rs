@@ -26,3 +26,13 @@ pub trait Transport {
     /// Read what has arrived, waiting up to `timeout` for the first byte; `Ok(0)` on timeout.
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize>;
 }
+
+impl<T: Transport + ?Sized> Transport for Box<T> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        (**self).send(bytes)
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        (**self).recv(buf, timeout)
+    }
+}
