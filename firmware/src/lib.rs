@@ -5,7 +5,8 @@
 //! - [`server`]: the framing around it over any embedded-io serial port;
 //! - [`store`]: the power-fail safe two-slot calibration store over a `NorFlash`;
 //! - [`ram_flash`]: a NOR flash in RAM with power cuts, for the host and the tests;
-//! - [`smoke`]: the boot-time smoke computation.
+//! - [`smoke`]: the boot-time smoke computation;
+//! - `systick` (board targets only): SysTick as the compute clock.
 #![cfg_attr(target_os = "none", no_std)]
 #![deny(missing_docs)]
 
@@ -14,3 +15,5 @@ pub mod ram_flash;
 pub mod server;
 pub mod smoke;
 pub mod store;
+#[cfg(target_os = "none")]
+pub mod systick;

@@ -7,6 +7,7 @@ pub mod bundle;
 pub mod cli;
 pub mod compare;
 pub mod demo;
+pub mod device_cli;
 pub mod io;
 pub mod link;
 pub mod ply;

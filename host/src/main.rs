@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{bundle, cli, demo, io, resection, simulate};
+use deltaz_host::{bundle, cli, demo, device_cli, io, resection, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -95,6 +95,14 @@ enum Command {
         #[command(subcommand)]
         what: CalibrateWhat,
     },
+    /// The device: list ports, show its info, upload a calibration, stream centroids through it.
+    /// Without --port or --qemu the firmware's logic runs in-process.
+    Device {
+        #[command(flatten)]
+        link: LinkOpts,
+        #[command(subcommand)]
+        what: DeviceWhat,
+    },
     /// Timings: camera calibration of the paper scenario and of a large network.
     Bench {
         /// Images of the large network.
@@ -103,6 +111,73 @@ enum Command {
         /// Targets of the large network.
         #[arg(long, default_value_t = 1000)]
         targets: u32,
+    },
+}
+
+/// How to reach the device.
+#[derive(clap::Args)]
+struct LinkOpts {
+    /// Serial port of the device (see `deltaz device ports`).
+    #[arg(long, global = true)]
+    port: Option<String>,
+    /// Baud rate of --port.
+    #[arg(long, global = true, default_value_t = 2_000_000)]
+    baud: u32,
+    /// Run the firmware in QEMU (mps2-an386) and talk to it over a pty; optionally the ELF.
+    #[arg(long, global = true, num_args = 0..=1,
+          default_missing_value = "target/thumbv7em-none-eabihf/release/mps2_an386")]
+    qemu: Option<PathBuf>,
+    /// Response timeout (ms).
+    #[arg(long, global = true, default_value_t = 3000)]
+    timeout_ms: u64,
+}
+
+impl LinkOpts {
+    fn args(&self) -> device_cli::LinkArgs {
+        device_cli::LinkArgs {
+            port: self.port.clone(),
+            baud: self.baud,
+            qemu: self.qemu.clone(),
+            timeout: std::time::Duration::from_millis(self.timeout_ms),
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum DeviceWhat {
+    /// List the serial ports.
+    Ports,
+    /// Firmware and protocol version, capacities, the calibration's fingerprint.
+    Info,
+    /// Upload system.json in chunks, verified by reading the fingerprint back.
+    Upload {
+        /// The calibrated system.
+        system: PathBuf,
+        /// Intersection on the device.
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
+    },
+    /// Stream centroids (an observations CSV, one frame per image, or simulated frames) through
+    /// the device into PLY and/or CSV, with a live points/s figure.
+    Stream {
+        /// The system the device must hold (uploaded first to an in-process or QEMU device).
+        #[arg(long)]
+        system: Option<PathBuf>,
+        /// Observations CSV `image,point,col,row[,kind]` (dot rows; point = ray id).
+        #[arg(long, conflicts_with = "simulate")]
+        obs: Option<PathBuf>,
+        /// Simulate this many frames of the system's dots on plates Z = 0, 100, 200 mm.
+        #[arg(long)]
+        simulate: Option<usize>,
+        /// Output PLY (binary).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Output CSV `image,point,X,Y,Z,miss`.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Intersection on the device when uploading.
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
     },
 }
 
@@ -272,6 +347,35 @@ fn main() -> anyhow::Result<()> {
             let file = bundle::calibrate_files(&init, &obs, &control, &out, &options)?;
             print!("{}", bundle::summary(&file, &options.free));
         }
+        Command::Device { link, what } => match what {
+            DeviceWhat::Ports => device_cli::ports()?,
+            DeviceWhat::Info => device_cli::info(&link.args())?,
+            DeviceWhat::Upload { system, method } => {
+                device_cli::upload(&link.args(), &system, method.into())?
+            }
+            DeviceWhat::Stream {
+                system,
+                obs,
+                simulate,
+                out,
+                csv,
+                method,
+            } => {
+                let source = match (obs, simulate) {
+                    (Some(path), _) => device_cli::StreamSource::Csv(path),
+                    (None, Some(frames)) => device_cli::StreamSource::Simulated { frames },
+                    (None, None) => anyhow::bail!("give --obs FILE or --simulate FRAMES"),
+                };
+                device_cli::stream(&device_cli::StreamArgs {
+                    link: link.args(),
+                    system,
+                    source,
+                    out,
+                    csv,
+                    method: method.into(),
+                })?
+            }
+        },
         Command::Bench { images, targets } => {
             for scenario in [
                 simulate::Scenario::paper(),

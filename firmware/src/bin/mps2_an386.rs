@@ -13,11 +13,12 @@
 
 #[cfg(target_os = "none")]
 mod board {
-    use cortex_m::peripheral::{syst::SystClkSource, SCB, SYST};
+    use cortex_m::peripheral::SCB;
     use cortex_m_rt::entry;
-    use deltaz_firmware::device::{Clock, Device, MAX_CALIBRATION};
+    use deltaz_firmware::device::{Device, MAX_CALIBRATION};
     use deltaz_firmware::server::Server;
     use deltaz_firmware::store::{Store, HEADER};
+    use deltaz_firmware::systick::SysTickClock;
     use embedded_io::{ErrorType, Read, Write};
     use embedded_storage::nor_flash::{
         check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash,
@@ -155,29 +156,6 @@ mod board {
                 unsafe { core::ptr::write_volatile(a, core::ptr::read_volatile(a) & b) };
             }
             Ok(())
-        }
-    }
-
-    /// SysTick as a 24-bit up-counter of core clock ticks.
-    struct SysTickClock;
-
-    impl SysTickClock {
-        fn start(mut syst: SYST) -> Self {
-            syst.set_clock_source(SystClkSource::Core);
-            syst.set_reload(0x00FF_FFFF);
-            syst.clear_current();
-            syst.enable_counter();
-            SysTickClock
-        }
-    }
-
-    impl Clock for SysTickClock {
-        fn now(&mut self) -> u32 {
-            0x00FF_FFFF - SYST::get_current()
-        }
-
-        fn since(&mut self, start: u32) -> u32 {
-            self.now().wrapping_sub(start) & 0x00FF_FFFF
         }
     }
 

@@ -146,6 +146,11 @@ impl<T: Transport> Device<T> {
         &mut self.transport
     }
 
+    /// Close the client, keeping the transport.
+    pub fn into_transport(self) -> T {
+        self.transport
+    }
+
     /// Bytes sent and received so far (frames and delimiters).
     pub fn byte_counts(&self) -> (u64, u64) {
         (self.sent, self.received)

@@ -48,6 +48,12 @@ fn boot(flash: InProcessFlash) -> Box<Server<InProcessFlash, NoClock>> {
 }
 
 impl InProcess {
+    /// Switch the device off: its flash, to boot another one from.
+    pub fn into_flash(self) -> Option<InProcessFlash> {
+        self.server
+            .map(|s| s.into_device().into_store().into_flash())
+    }
+
     /// Restart the device from its flash, as a board does after a reset.
     fn reboot(&mut self) {
         if let Some(old) = self.server.take() {

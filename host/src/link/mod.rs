@@ -12,7 +12,7 @@ mod serial;
 
 pub use calibration::calibration_blob;
 pub use client::{Device, DeviceError, WorldPoint, DEFAULT_TIMEOUT};
-pub use in_process::InProcess;
+pub use in_process::{InProcess, InProcessFlash};
 pub use qemu::Qemu;
 pub use serial::{list_ports, Serial};
 
@@ -25,4 +25,14 @@ pub trait Transport {
     fn send(&mut self, bytes: &[u8]) -> io::Result<()>;
     /// Read what has arrived, waiting up to `timeout` for the first byte; `Ok(0)` on timeout.
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize>;
+}
+
+impl<T: Transport + ?Sized> Transport for Box<T> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        (**self).send(bytes)
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        (**self).recv(buf, timeout)
+    }
 }

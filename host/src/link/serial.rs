@@ -47,10 +47,12 @@ impl Serial {
             .open()
             .map_err(|e| {
                 let text = e.to_string().to_lowercase();
-                if text.contains("busy") || text.contains("temporarily unavailable") {
+                // The path exists: "no device" means another program holds it (TIOCEXCL/flock).
+                if e.kind() == serialport::ErrorKind::NoDevice
+                    || text.contains("busy")
+                    || text.contains("temporarily unavailable")
+                {
                     DeviceError::Busy(path.into())
-                } else if e.kind() == serialport::ErrorKind::NoDevice {
-                    DeviceError::Absent(path.into())
                 } else {
                     DeviceError::Io(io::Error::other(format!("{path}: {e}")))
                 }
