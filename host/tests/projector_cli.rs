@@ -65,7 +65,7 @@ fn calibrate_then_reconstruct() {
         assert_eq!(system["projector"]["rays"].as_array().unwrap().len(), 440);
         assert_eq!(system["fingerprint"].as_str().unwrap().len(), 16);
     }
-    // The 3rd image's dots through the system: on the plate (Z = 200 in the rig frame).
+    // The 3rd image's dots through the system: back on the 3rd plate.
     let obs = std::fs::read_to_string(d.join("plate_obs.csv")).unwrap();
     let mut dots = String::from("image,point,col,row,kind\n");
     for line in obs
@@ -102,7 +102,8 @@ fn calibrate_then_reconstruct() {
         .collect();
     assert_eq!(rows.len(), 440);
     let mean_z = rows.iter().map(|r| r[3]).sum::<f64>() / rows.len() as f64;
-    assert!((mean_z - 200.0).abs() < 3.0, "mean Z {mean_z}");
+    // Table 2's Z0 steps (−101.181, −102.117 mm) put the 3rd plate at Z ≈ 203.3 in the rig frame.
+    assert!((mean_z - 203.3).abs() < 1.0, "mean Z {mean_z}");
     let worst = rows.iter().map(|r| r[7]).fold(0.0, f64::max);
     assert!(
         rows.iter().all(|r| r[7] > 0.3) && worst < 2.0,
