@@ -362,6 +362,8 @@ mod tests {
             "stable across builds"
         );
         assert_eq!(file.fingerprint.len(), 16);
+        // Pinned: the fingerprint must not change between builds or runs for the same content.
+        assert_eq!(file.fingerprint, "dcf81c9e1c2eb81c");
         assert_eq!(rig.projector_centred().rays().len(), 2);
         // FNV-1a 64 reference values.
         assert_eq!(fnv1a64(b""), 0xcbf29ce484222325);
