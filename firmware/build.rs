@@ -1,13 +1,23 @@
 //! Writes the linker memory map for the bare-metal target only (the host build is a plain library).
 use std::{env, fs, path::PathBuf};
 
-/// mps2-an386 (QEMU): 4 MiB of code memory at 0, 4 MiB of RAM at 0x2000_0000.
-const MEMORY_X: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x00000000, LENGTH = 4M\n  RAM : ORIGIN = 0x20000000, LENGTH = 4M\n}\n";
+/// mps2-an386 (QEMU): 4 MiB of code memory at 0, 4 MiB of RAM at 0x2000_0000. The top 64 KiB
+/// of the code memory (0x003F_0000) is left out: it holds the calibration store.
+const MEMORY_X: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x00000000, LENGTH = 4032K\n  RAM : ORIGIN = 0x20000000, LENGTH = 4M\n}\n";
+
+/// STM32F401RE: 512 KiB flash, of which sectors 6 and 7 (the top 256 KiB) hold the calibration
+/// store, so the program gets sectors 0-5; 96 KiB of RAM.
+const MEMORY_X_NUCLEO_F401RE: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x08000000, LENGTH = 256K\n  RAM : ORIGIN = 0x20000000, LENGTH = 96K\n}\n";
 
 fn main() {
     if env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
         let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-        fs::write(out.join("memory.x"), MEMORY_X).expect("write memory.x");
+        let memory = if env::var_os("CARGO_FEATURE_NUCLEO_F401RE").is_some() {
+            MEMORY_X_NUCLEO_F401RE
+        } else {
+            MEMORY_X
+        };
+        fs::write(out.join("memory.x"), memory).expect("write memory.x");
         println!("cargo:rustc-link-search={}", out.display());
         println!("cargo:rustc-link-arg-bins=-Tlink.x");
     }

@@ -1,12 +1,410 @@
 //! `deltaz`: the command-line front end.
-use clap::Parser;
+use clap::{Parser, Subcommand};
+use deltaz_host::{bundle, cli, demo, device_cli, io, resection, simulate};
+use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
 #[derive(Parser)]
 #[command(version, about)]
-struct Cli {}
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a scenario: camera_init.json, camera_obs.csv, camera_control.csv, plate_obs.csv,
+    /// plate_control.csv and truth.json in the output directory.
+    Simulate {
+        /// `paper` (built in) or a scenario TOML file.
+        #[arg(long)]
+        scenario: String,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Random seed (default: the scenario's).
+        #[arg(long)]
+        seed: Option<u64>,
+    },
+    /// Accuracy assessment (Tables 6-7): 7-parameter similarity, residuals, n−1 std, absolute
+    /// errors with no fit, flatness. Point files are CSV `point,X,Y,Z`, matched by `point`.
+    Compare {
+        /// Reconstructed points.
+        #[arg(long)]
+        reconstructed: PathBuf,
+        /// Reference points.
+        #[arg(long)]
+        reference: PathBuf,
+        /// Print JSON instead of tables.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Reconstruct identified dots (CSV `image,point,col,row[,kind]`, `point` = ray id; with a
+    /// `kind` column only the `dot` rows) into a PLY point cloud.
+    Reconstruct {
+        /// The calibrated system (system.json).
+        #[arg(long)]
+        system: PathBuf,
+        /// Dot observations.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output PLY file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// ASCII PLY instead of binary.
+        #[arg(long)]
+        ascii: bool,
+        /// Image noise (px): adds the propagated σ of every point.
+        #[arg(long)]
+        sigma_px: Option<f64>,
+        /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
+    },
+    /// Space resection: the exterior orientation of every image from known control.
+    Resect {
+        /// camera.json (or camera_init.json) with the inner orientation.
+        #[arg(long)]
+        camera: PathBuf,
+        /// Observations CSV (image,point,col,row[,kind]); dots are skipped.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Control CSV (point,X,Y,Z,sigma).
+        #[arg(long)]
+        control: PathBuf,
+        /// Also write the poses as JSON ("deltaz.poses/1").
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// The whole system on the simulated paper rig: camera and projector calibration, upload to
+    /// the device, one frame of a torso-like surface; writes cloud.ply, report.md, report.json,
+    /// system.json and SVG plots.
+    Demo {
+        /// Output directory.
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+        /// Random seed of the simulation.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Calibration steps.
+    Calibrate {
+        #[command(subcommand)]
+        what: CalibrateWhat,
+    },
+    /// The device: list ports, show its info, upload a calibration, stream centroids through it.
+    /// Without --port or --qemu the firmware's logic runs in-process.
+    Device {
+        #[command(flatten)]
+        link: LinkOpts,
+        #[command(subcommand)]
+        what: DeviceWhat,
+    },
+    /// Timings: camera calibration of the paper scenario and of a large network.
+    Bench {
+        /// Images of the large network.
+        #[arg(long, default_value_t = 200)]
+        images: u32,
+        /// Targets of the large network.
+        #[arg(long, default_value_t = 1000)]
+        targets: u32,
+    },
+}
+
+/// How to reach the device.
+#[derive(clap::Args)]
+struct LinkOpts {
+    /// Serial port of the device (see `deltaz device ports`).
+    #[arg(long, global = true)]
+    port: Option<String>,
+    /// Baud rate of --port.
+    #[arg(long, global = true, default_value_t = 2_000_000)]
+    baud: u32,
+    /// Run the firmware in QEMU (mps2-an386) and talk to it over a pty; optionally the ELF.
+    #[arg(long, global = true, num_args = 0..=1,
+          default_missing_value = "target/thumbv7em-none-eabihf/release/mps2_an386")]
+    qemu: Option<PathBuf>,
+    /// Response timeout (ms).
+    #[arg(long, global = true, default_value_t = 3000)]
+    timeout_ms: u64,
+}
+
+impl LinkOpts {
+    fn args(&self) -> device_cli::LinkArgs {
+        device_cli::LinkArgs {
+            port: self.port.clone(),
+            baud: self.baud,
+            qemu: self.qemu.clone(),
+            timeout: std::time::Duration::from_millis(self.timeout_ms),
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum DeviceWhat {
+    /// List the serial ports.
+    Ports,
+    /// Firmware and protocol version, capacities, the calibration's fingerprint.
+    Info,
+    /// Upload system.json in chunks, verified by reading the fingerprint back.
+    Upload {
+        /// The calibrated system.
+        system: PathBuf,
+        /// Intersection on the device.
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
+    },
+    /// Stream centroids (an observations CSV, one frame per image, or simulated frames) through
+    /// the device into PLY and/or CSV, with a live points/s figure.
+    Stream {
+        /// The system the device must hold (uploaded first to an in-process or QEMU device).
+        #[arg(long)]
+        system: Option<PathBuf>,
+        /// Observations CSV `image,point,col,row[,kind]` (dot rows; point = ray id).
+        #[arg(long, conflicts_with = "simulate")]
+        obs: Option<PathBuf>,
+        /// Simulate this many frames of the system's dots on plates Z = 0, 100, 200 mm.
+        #[arg(long)]
+        simulate: Option<usize>,
+        /// Output PLY (binary).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Output CSV `image,point,X,Y,Z,miss`.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Intersection on the device when uploading.
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
+    },
+}
+
+#[derive(Subcommand)]
+enum CalibrateWhat {
+    /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
+    /// writes system.json ("deltaz.system/1").
+    Projector {
+        /// camera.json (inner orientation and pixel mapping).
+        #[arg(long)]
+        camera: PathBuf,
+        /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
+        #[arg(long)]
+        control: PathBuf,
+        /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
+        /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output system.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
+        #[arg(long, default_value = "paper")]
+        model: deltaz_host::projector_calibration::Model,
+        /// Image noise (px) weighting the plane points and giving the rays' covariances.
+        #[arg(long, default_value_t = 0.5)]
+        image_sigma_px: f64,
+    },
+    /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
+    Camera {
+        /// The starting sensor: camera_init.json (pixel mapping, approximate f).
+        #[arg(long)]
+        init: PathBuf,
+        /// Target observations CSV.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Control CSV (point,X,Y,Z,sigma).
+        #[arg(long)]
+        control: PathBuf,
+        /// Output camera.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also estimate k2.
+        #[arg(long)]
+        k2: bool,
+        /// Also estimate k3.
+        #[arg(long)]
+        k3: bool,
+        /// Also estimate p1.
+        #[arg(long)]
+        p1: bool,
+        /// Also estimate p2.
+        #[arg(long)]
+        p2: bool,
+        /// Free network: control only gives approximate values; minimal constraints.
+        #[arg(long)]
+        free_network: bool,
+        /// A priori σ of image coordinates (px), weighting control against images.
+        #[arg(long, default_value_t = 0.5)]
+        image_sigma_px: f64,
+    },
+}
 
 fn main() -> anyhow::Result<()> {
-    Cli::parse();
+    match Cli::parse().command {
+        Command::Simulate {
+            scenario,
+            out,
+            seed,
+        } => {
+            let scenario = simulate::load_scenario(&scenario)?;
+            let sim = simulate::simulate(&scenario, seed.unwrap_or(scenario.seed));
+            simulate::write_simulation(&out, &sim)?;
+            println!(
+                "{}: {} field observations in {} images, {} plate observations in {} images -> {}",
+                scenario.name,
+                sim.camera_obs.len(),
+                sim.truth.stations.len(),
+                sim.plate_obs.len(),
+                sim.truth.plate.images.len(),
+                out.display()
+            );
+        }
+        Command::Demo { out, seed } => {
+            let report = demo::run(&out, seed)?;
+            println!(
+                "torso error std {} mm (floor {} mm), flat plate vs truth {} mm -> {}",
+                report["error_std_mm"],
+                report["torso"]["floor_mm"],
+                report["flat_plate"]["vs_truth_mm"],
+                out.display()
+            );
+        }
+        Command::Compare {
+            reconstructed,
+            reference,
+            json,
+        } => cli::compare(&reconstructed, &reference, json)?,
+        Command::Reconstruct {
+            system,
+            obs,
+            out,
+            csv,
+            ascii,
+            sigma_px,
+            method,
+        } => cli::reconstruct(&cli::ReconstructArgs {
+            system,
+            obs,
+            out,
+            csv,
+            ascii,
+            sigma_px,
+            method,
+        })?,
+        Command::Resect {
+            camera,
+            obs,
+            control,
+            out,
+        } => {
+            let cam = io::camera_file::read_camera(&camera)?;
+            let observations = io::observations::read_observations(&obs)?;
+            let control = io::control::read_control(&control)?;
+            let results =
+                resection::resect_images(&obs, &cam.grid(), &cam.inner(), &observations, &control)?;
+            let poses = resection::PosesFile::new(&results);
+            print!("{}", poses.table());
+            if let Some(out) = out {
+                io::atomic::write_json_atomic(&out, &poses)?;
+            }
+        }
+        Command::Calibrate {
+            what:
+                CalibrateWhat::Projector {
+                    camera,
+                    control,
+                    obs,
+                    out,
+                    model,
+                    image_sigma_px,
+                },
+        } => cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?,
+        Command::Calibrate {
+            what:
+                CalibrateWhat::Camera {
+                    init,
+                    obs,
+                    control,
+                    out,
+                    k2,
+                    k3,
+                    p1,
+                    p2,
+                    free_network,
+                    image_sigma_px,
+                },
+        } => {
+            let mut options = bundle::CalibrationOptions {
+                free_network,
+                image_sigma_px,
+                ..Default::default()
+            };
+            for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
+                options.free.inner[k] |= on;
+            }
+            let file = bundle::calibrate_files(&init, &obs, &control, &out, &options)?;
+            print!("{}", bundle::summary(&file, &options.free));
+        }
+        Command::Device { link, what } => match what {
+            DeviceWhat::Ports => device_cli::ports()?,
+            DeviceWhat::Info => device_cli::info(&link.args())?,
+            DeviceWhat::Upload { system, method } => {
+                device_cli::upload(&link.args(), &system, method.into())?
+            }
+            DeviceWhat::Stream {
+                system,
+                obs,
+                simulate,
+                out,
+                csv,
+                method,
+            } => {
+                let source = match (obs, simulate) {
+                    (Some(path), _) => device_cli::StreamSource::Csv(path),
+                    (None, Some(frames)) => device_cli::StreamSource::Simulated { frames },
+                    (None, None) => anyhow::bail!("give --obs FILE or --simulate FRAMES"),
+                };
+                device_cli::stream(&device_cli::StreamArgs {
+                    link: link.args(),
+                    system,
+                    source,
+                    out,
+                    csv,
+                    method: method.into(),
+                })?
+            }
+        },
+        Command::Bench { images, targets } => {
+            for scenario in [
+                simulate::Scenario::paper(),
+                simulate::Scenario::large(images, targets),
+            ] {
+                let sim = simulate::simulate(&scenario, 1);
+                let options = bundle::CalibrationOptions::default();
+                let start = std::time::Instant::now();
+                let problem = bundle::build_problem(
+                    std::path::Path::new("simulated"),
+                    &sim.camera_init.grid(),
+                    &sim.camera_init.inner(),
+                    &sim.camera_obs,
+                    &sim.camera_control,
+                    &options,
+                )?;
+                let cal = bundle::calibrate(problem, &options)?;
+                println!(
+                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm",
+                    scenario.name,
+                    cal.problem.images.len(),
+                    cal.problem.xyz.len(),
+                    sim.camera_obs.len(),
+                    start.elapsed().as_secs_f64(),
+                    cal.iterations,
+                    cal.solution.sigma0
+                );
+            }
+        }
+    }
     Ok(())
 }

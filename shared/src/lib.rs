@@ -10,6 +10,7 @@
 //! | [`projector`] | eq. (5) | the calibrated projector: a centre and a table of rays |
 //! | [`intersection`] | eqs (8), (9) | λ, λp, and a least-squares closest approach |
 //! | [`rig`] | section 2 | camera + projector: an image point and a ray id → a 3D point |
+//! | [`protocol`] | — | the host ↔ device wire protocol (messages, frames, calibration blob) |
 //!
 //! # Glossary and conventions
 //! - Units: millimetres and radians everywhere.
@@ -31,6 +32,7 @@ pub mod camera;
 pub mod collinearity;
 pub mod intersection;
 pub mod projector;
+pub mod protocol;
 pub mod rig;
 pub mod rotation;
 

@@ -1,0 +1,138 @@
+//! `deltaz device ...` through the binary: the in-process device, clear errors, and a stream whose
+//! points agree with `deltaz reconstruct` on the same system.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn deltaz(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("run deltaz")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = deltaz(args);
+    assert!(
+        out.status.success(),
+        "deltaz {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr)
+}
+
+fn err(args: &[&str]) -> String {
+    let out = deltaz(args);
+    assert!(!out.status.success(), "deltaz {args:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// `image,point` → (X, Y, Z) of a points CSV.
+fn points(path: &Path) -> HashMap<(String, String), [f64; 3]> {
+    let text = std::fs::read_to_string(path).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let xyz = [f[2], f[3], f[4]].map(|v| v.parse::<f64>().unwrap());
+            ((f[0].to_owned(), f[1].to_owned()), xyz)
+        })
+        .collect()
+}
+
+#[test]
+fn info_and_link_errors() {
+    let info = ok(&["device", "info"]);
+    assert!(
+        info.contains("protocol 1") && info.contains("no calibration"),
+        "{info}"
+    );
+    let absent = err(&["device", "info", "--port", "/dev/deltaz-none"]);
+    assert!(absent.contains("no device at /dev/deltaz-none"), "{absent}");
+    let both = err(&["device", "info", "--port", "/dev/x", "--qemu", "/x.elf"]);
+    assert!(both.contains("exclude each other"), "{both}");
+}
+
+#[test]
+fn stream_matches_reconstruct() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |name: &str| dir.path().join(name).display().to_string();
+    ok(&["simulate", "--scenario", "paper", "--out", &p("")]);
+    ok(&[
+        "calibrate",
+        "camera",
+        "--init",
+        &p("camera_init.json"),
+        "--obs",
+        &p("camera_obs.csv"),
+        "--control",
+        &p("camera_control.csv"),
+        "--out",
+        &p("camera.json"),
+    ]);
+    ok(&[
+        "calibrate",
+        "projector",
+        "--camera",
+        &p("camera.json"),
+        "--control",
+        &p("plate_control.csv"),
+        "--obs",
+        &p("plate_obs.csv"),
+        "--out",
+        &p("system.json"),
+    ]);
+    let upload = ok(&["device", "upload", &p("system.json")]);
+    assert!(upload.contains("read back, generation 1"), "{upload}");
+    let stream = ok(&[
+        "device",
+        "stream",
+        "--system",
+        &p("system.json"),
+        "--obs",
+        &p("plate_obs.csv"),
+        "--csv",
+        &p("device.csv"),
+        "--out",
+        &p("device.ply"),
+    ]);
+    assert!(
+        stream.contains("points/s") && stream.contains("0 without a point"),
+        "{stream}"
+    );
+    ok(&[
+        "reconstruct",
+        "--system",
+        &p("system.json"),
+        "--obs",
+        &p("plate_obs.csv"),
+        "--out",
+        &p("host.ply"),
+        "--csv",
+        &p("host.csv"),
+    ]);
+    let device = points(&dir.path().join("device.csv"));
+    let host = points(&dir.path().join("host.csv"));
+    assert_eq!(device.len(), host.len());
+    assert!(device.len() >= 1000, "{} points", device.len());
+    // The device sees centroids rounded to 1/64 pixel (≤ 1/128 px per axis): at 1.8 m with
+    // f = 47 mm and 45 µm pixels one pixel spans about 1.8 mm, so ≤ 0.02 mm in X and Y, and
+    // several times that in Z, the depth from a 490 mm baseline (0.06 mm measured).
+    let worst = device
+        .iter()
+        .map(|(k, d)| {
+            let h = host[k];
+            (0..3).map(|i| (d[i] - h[i]).abs()).fold(0.0, f64::max)
+        })
+        .fold(0.0, f64::max);
+    println!("device stream vs deltaz reconstruct: worst {worst:.4} mm per axis");
+    assert!(worst < 0.1, "device vs reconstruct: {worst} mm");
+    assert!(
+        std::fs::metadata(dir.path().join("device.ply"))
+            .unwrap()
+            .len()
+            > 1000
+    );
+}

@@ -1,0 +1,218 @@
+//! `deltaz calibrate projector` and `deltaz reconstruct` on simulated files, and their bad
+//! input: rays seen on one plane, coplanar plate control, an unknown ray, an edited system.json.
+//! Nothing is written when they fail.
+
+use deltaz_host::io::camera_file::{write_camera, CameraFile};
+use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn deltaz(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap()
+}
+
+/// A simulated paper rig at 0.1 px with the true camera as camera.json.
+fn setup(dir: &Path) {
+    let mut scenario = Scenario::paper();
+    scenario.noise.image_sigma_px = 0.1;
+    let sim = simulate(&scenario, 2);
+    write_simulation(dir, &sim).unwrap();
+    let (grid, inner) = true_camera(&scenario);
+    write_camera(&dir.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
+}
+
+fn calibrate(dir: &Path, control: &str, obs: &str, model: &str) -> Output {
+    deltaz(
+        &[
+            "calibrate",
+            "projector",
+            "--camera",
+            "camera.json",
+            "--control",
+            control,
+            "--obs",
+            obs,
+            "--out",
+            "system.json",
+            "--model",
+            model,
+            "--image-sigma-px",
+            "0.1",
+        ],
+        dir,
+    )
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn calibrate_then_reconstruct() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    setup(d);
+    for model in ["paper", "joint", "noncentral"] {
+        let out = calibrate(d, "plate_control.csv", "plate_obs.csv", model);
+        assert!(out.status.success(), "{model}: {}", stderr(&out));
+        let system: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("system.json")).unwrap()).unwrap();
+        assert_eq!(system["format"], "deltaz.system/1");
+        assert_eq!(system["projector"]["rays"].as_array().unwrap().len(), 440);
+        assert_eq!(system["fingerprint"].as_str().unwrap().len(), 16);
+    }
+    // The 3rd image's dots through the system: back on the 3rd plate.
+    let obs = std::fs::read_to_string(d.join("plate_obs.csv")).unwrap();
+    let mut dots = String::from("image,point,col,row,kind\n");
+    for line in obs
+        .lines()
+        .filter(|l| l.starts_with("p3,") && l.ends_with(",dot"))
+    {
+        dots += line;
+        dots.push('\n');
+    }
+    std::fs::write(d.join("dots.csv"), dots).unwrap();
+    let out = deltaz(
+        &[
+            "reconstruct",
+            "--system",
+            "system.json",
+            "--obs",
+            "dots.csv",
+            "--out",
+            "cloud.ply",
+            "--csv",
+            "cloud.csv",
+            "--sigma-px",
+            "0.1",
+            "--ascii",
+        ],
+        d,
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let csv = std::fs::read_to_string(d.join("cloud.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').skip(1).map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 440);
+    let mean_z = rows.iter().map(|r| r[3]).sum::<f64>() / rows.len() as f64;
+    // Table 2's Z0 steps (−101.181, −102.117 mm) put the 3rd plate at Z ≈ 203.3 in the rig frame.
+    assert!((mean_z - 203.3).abs() < 1.0, "mean Z {mean_z}");
+    let worst = rows.iter().map(|r| r[7]).fold(0.0, f64::max);
+    assert!(
+        rows.iter().all(|r| r[7] > 0.3) && worst < 2.0,
+        "σZ up to {worst}"
+    );
+    let ply = std::fs::read_to_string(d.join("cloud.ply")).unwrap();
+    assert!(ply.contains("element vertex 440\n") && ply.contains("property double sigma_z\n"));
+}
+
+#[test]
+fn bad_input_is_named_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    setup(d);
+    // Coplanar control: every point flattened onto the plate.
+    let control = std::fs::read_to_string(d.join("plate_control.csv")).unwrap();
+    let flat: String = control
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == 0 {
+                format!("{l}\n")
+            } else {
+                let mut f: Vec<&str> = l.split(',').collect();
+                f[3] = "0";
+                f.join(",") + "\n"
+            }
+        })
+        .collect();
+    std::fs::write(d.join("flat.csv"), flat).unwrap();
+    let out = calibrate(d, "flat.csv", "plate_obs.csv", "paper");
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("flat.csv: the plate's control points are coplanar"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!d.join("system.json").exists());
+
+    // Ray 305 seen on the 1st plate only.
+    let obs = std::fs::read_to_string(d.join("plate_obs.csv")).unwrap();
+    let lonely: String = obs
+        .lines()
+        .filter(|l| !(l.starts_with("p2,305,") || l.starts_with("p3,305,")))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(d.join("lonely.csv"), lonely).unwrap();
+    let out = calibrate(d, "plate_control.csv", "lonely.csv", "joint");
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("fewer than two planes cannot be calibrated: 305"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!d.join("system.json").exists());
+
+    // A good system, then an unknown ray and a hand-edited system.
+    assert!(calibrate(d, "plate_control.csv", "plate_obs.csv", "paper")
+        .status
+        .success());
+    std::fs::write(
+        d.join("unknown.csv"),
+        "image,point,col,row\nf1,305,300,200\nf1,2121,310,210\n",
+    )
+    .unwrap();
+    let out = deltaz(
+        &[
+            "reconstruct",
+            "--system",
+            "system.json",
+            "--obs",
+            "unknown.csv",
+            "--out",
+            "u.ply",
+        ],
+        d,
+    );
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("observation 2 (ray 2121"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!d.join("u.ply").exists());
+    let text = std::fs::read_to_string(d.join("system.json")).unwrap();
+    let mut system: serde_json::Value = serde_json::from_str(&text).unwrap();
+    system["projector"]["rays"][3]["n"] = serde_json::json!(-0.5);
+    std::fs::write(
+        d.join("edited.json"),
+        serde_json::to_string(&system).unwrap(),
+    )
+    .unwrap();
+    let out = deltaz(
+        &[
+            "reconstruct",
+            "--system",
+            "edited.json",
+            "--obs",
+            "unknown.csv",
+            "--out",
+            "u.ply",
+        ],
+        d,
+    );
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("direction cosines are not a unit vector"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!d.join("u.ply").exists());
+}

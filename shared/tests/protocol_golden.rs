@@ -1,0 +1,175 @@
+//! Golden frames: the exact bytes of one frame of every message kind, so any change of the wire
+//! format shows here (and must come with a new PROTOCOL_VERSION).
+
+use deltaz_shared::protocol::calibration::IntersectionMethod;
+use deltaz_shared::protocol::{
+    decode_request, decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo,
+    DeviceStats, ErrorCode, PointResult, PointStatus, Request, RequestBody, Response, ResponseBody,
+    WireError, MAX_FRAME, PROTOCOL_VERSION,
+};
+
+fn requests() -> Vec<Request> {
+    let body = [
+        RequestBody::Info,
+        RequestBody::UploadBegin {
+            len: 300,
+            crc: 0xDEAD_BEEF,
+        },
+        RequestBody::UploadChunk {
+            offset: 1024,
+            data: heapless::Vec::from_slice(&[1, 0, 3]).unwrap(),
+        },
+        RequestBody::UploadCommit,
+        RequestBody::Compute {
+            centroids: heapless::Vec::from_slice(&[Centroid {
+                id: 102,
+                col: 0x1234,
+                row: 0x00FF,
+            }])
+            .unwrap(),
+        },
+        RequestBody::Stats,
+        RequestBody::Reset,
+    ];
+    body.into_iter()
+        .enumerate()
+        .map(|(i, body)| Request {
+            seq: i as u32 + 1,
+            body,
+        })
+        .collect()
+}
+
+fn responses() -> Vec<Response> {
+    let body = [
+        ResponseBody::Info(DeviceInfo {
+            firmware: [0, 1, 0],
+            protocol: PROTOCOL_VERSION,
+            ray_capacity: 512,
+            max_batch: 512,
+            max_frame: MAX_FRAME as u32,
+            max_calibration: 16384,
+            calibration: Some(CalibrationSummary {
+                fingerprint: 0x0123_4567_89AB_CDEF,
+                generation: 2,
+                rays: 440,
+                centroid_bits: 6,
+                camera_centre: [375.121, 364.541, 1842.675],
+            }),
+        }),
+        ResponseBody::UploadReady { len: 300 },
+        ResponseBody::ChunkAccepted { next_offset: 1027 },
+        ResponseBody::Committed {
+            fingerprint: 0x0123_4567_89AB_CDEF,
+            generation: 2,
+        },
+        ResponseBody::Points {
+            fingerprint: 42,
+            points: heapless::Vec::from_slice(&[
+                PointResult::Point {
+                    xyz: [1, -2, 3],
+                    miss: 5,
+                },
+                PointResult::Failed(PointStatus::UnknownRay),
+            ])
+            .unwrap(),
+        },
+        ResponseBody::Stats(DeviceStats {
+            requests: 10,
+            bad_frames: 1,
+            points: 4400,
+            last_compute_ticks: 26206,
+            last_compute_points: 440,
+        }),
+        ResponseBody::Resetting,
+        ResponseBody::Error(ErrorCode::NoCalibration),
+    ];
+    body.into_iter()
+        .enumerate()
+        .map(|(i, body)| Response {
+            seq: i as u32 + 1,
+            body,
+        })
+        .chain([Response {
+            seq: 0,
+            body: ResponseBody::Error(ErrorCode::Frame(WireError::BadCrc)),
+        }])
+        .collect()
+}
+
+/// The frames of [`requests`], in order. The first by hand: postcard of Info with seq 1 is
+/// `01 00`; its CRC-32 (zlib) is 0x58c223be, little endian `be 23 c2 58`; COBS turns
+/// `01 00 be 23 c2 58` into `02 01 05 be 23 c2 58`; then the delimiter `00`.
+const REQUEST_FRAMES: [&str; 7] = [
+    "02 01 05 be 23 c2 58 00",
+    "0e 02 01 ac 02 ef fd b6 f5 0d 34 51 b7 c1 00",
+    "07 03 02 80 08 03 01 06 03 d9 02 8c d8 00",
+    "07 04 03 41 86 bc bc 00",
+    "05 05 04 01 66 04 34 12 ff 05 72 5d c1 a3 00",
+    "07 06 05 f6 41 e9 67 00",
+    "07 07 06 0d 21 fb e7 00",
+];
+
+/// The frames of [`responses`], in order.
+const RESPONSE_FRAMES: [&str; 9] = [
+    "02 01 01 02 01 35 01 80 04 80 04 80 29 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
+     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 1c 97 8a b9 00",
+    "09 02 01 ac 02 69 ef 33 66 00",
+    "07 03 02 83 08 26 e7 02 2e 00",
+    "11 04 03 ef 9b af cd f8 ac d1 91 01 02 d0 af 85 68 00",
+    "06 05 04 2a 02 01 01 05 fe ff ff 03 01 02 05 01 01 01 01 01 01 01 01 06 f0 66 81 24 eb 00",
+    "10 06 05 0a 01 b0 22 de cc 01 b8 03 cd 5e 07 e8 00",
+    "07 07 06 0d 21 fb e7 00",
+    "08 08 07 01 fb 2e 14 c9 00",
+    "01 02 07 06 02 b5 a8 05 ca 00",
+];
+
+fn bytes(hex: &str) -> Vec<u8> {
+    hex.split_whitespace()
+        .map(|b| u8::from_str_radix(b, 16).unwrap())
+        .collect()
+}
+
+/// The bytes between the delimiters.
+fn body(frame: &[u8]) -> Vec<u8> {
+    assert_eq!(frame.last(), Some(&0), "a frame ends with its delimiter");
+    assert!(
+        !frame[..frame.len() - 1].contains(&0),
+        "COBS leaves no other zero"
+    );
+    frame[..frame.len() - 1].to_vec()
+}
+
+#[test]
+fn request_frames_are_golden() {
+    let mut buf = [0u8; MAX_FRAME];
+    for (request, golden) in requests().into_iter().zip(REQUEST_FRAMES) {
+        let frame = encode_frame(&request, &mut buf).unwrap();
+        assert_eq!(frame, &bytes(golden)[..], "{:?}", request.body);
+        assert_eq!(decode_request(&mut body(frame)), Ok(request));
+    }
+}
+
+#[test]
+fn response_frames_are_golden() {
+    let mut buf = [0u8; MAX_FRAME];
+    for (response, golden) in responses().into_iter().zip(RESPONSE_FRAMES) {
+        let frame = encode_frame(&response, &mut buf).unwrap();
+        assert_eq!(frame, &bytes(golden)[..], "{:?}", response.body);
+        assert_eq!(decode_response(&mut body(frame)), Ok(response));
+    }
+}
+
+#[test]
+fn calibration_method_tags() {
+    // The blob's method byte: postcard variant index.
+    let mut buf = [0u8; 4];
+    assert_eq!(
+        postcard::to_slice(&IntersectionMethod::Paper, &mut buf).unwrap(),
+        &[0]
+    );
+    assert_eq!(
+        postcard::to_slice(&IntersectionMethod::ClosestApproach, &mut buf).unwrap(),
+        &[1]
+    );
+}

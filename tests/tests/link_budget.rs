@@ -1,0 +1,32 @@
+//! Bytes per point on the link, counted over the encoded frames of a full 440-dot frame, and the
+//! frame rate they allow over a 2 Mbaud UART (8N1: 10 bits a byte, full duplex).
+
+use deltaz_host::link::Device;
+use deltaz_tests::pattern::{pattern_rig, plate_centroids};
+
+#[test]
+fn bytes_per_point_of_a_440_dot_frame() {
+    let rig = pattern_rig();
+    let mut device = Device::in_process();
+    device.upload(&rig, 1).unwrap();
+    let frame = plate_centroids(&rig, 100.0, (0.0, 0.0));
+    assert_eq!(frame.len(), 440, "every dot of the pattern is seen");
+    let (sent0, received0) = device.byte_counts();
+    let points = device.compute(&frame).unwrap();
+    assert!(points.iter().all(Result::is_ok));
+    let (sent1, received1) = device.byte_counts();
+    let request = (sent1 - sent0) as f64 / 440.0;
+    let response = (received1 - received0) as f64 / 440.0;
+    let per_direction = 2e6 / 10.0; // bytes/s each way
+    let fps = per_direction / (440.0 * request.max(response));
+    println!(
+        "440-dot frame: request {request:.3} + response {response:.3} = {:.3} bytes per point; \
+         {fps:.1} frames/s at 2 Mbaud (full duplex), {:.1} if both directions shared the line",
+        request + response,
+        per_direction / (440.0 * (request + response))
+    );
+    // 6 bytes a centroid, 10 a result, plus headers, CRC, COBS and delimiters.
+    assert!((6.0..6.1).contains(&request), "{request}");
+    assert!((10.0..10.1).contains(&response), "{response}");
+    assert!(fps >= 30.0);
+}
