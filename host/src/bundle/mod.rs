@@ -6,8 +6,10 @@
 //! only give approximate values and the datum is fixed by minimal constraints (the 1st image's
 //! pose and one coordinate of the 2nd image's centre). Stations are initialised by space
 //! resection ([`crate::resection`]), tie points by intersection. Gross errors are removed by data
-//! snooping: the observation with the largest test value T = |v|² / (σ0² r̄) (r̄ the mean
-//! redundancy number) above the threshold is rejected and the adjustment repeated. The threshold
+//! snooping: with the test value T = |v|² / (σ0² r̄) (r̄ the mean redundancy number), the
+//! observations above both the threshold and a quarter of the largest T are rejected and the
+//! adjustment is repeated, until no T exceeds the threshold (the largest errors go first, so they
+//! do not drag good observations out with them; big data sets need few rounds). The threshold
 //! is χ²₂ at 1 − 0.05/n for n observations, 2 ln(n / 0.05) (Bonferroni: a clean data set loses
 //! nothing with 95 % probability), and at least χ²₂(0.999) = 13.8.
 
@@ -243,7 +245,7 @@ pub fn calibrate(
         for o in problem.observations.iter().filter(|o| o.active) {
             active_per_point[o.point] += 1;
         }
-        let worst = problem
+        let tests: Vec<(usize, f64, f64)> = problem
             .observations
             .iter()
             .enumerate()
@@ -258,23 +260,25 @@ pub fn calibrate(
                 );
                 (n, r.value.norm_squared() / var, r.value.norm())
             })
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        match worst {
-            Some((n, t, v))
-                if t > snooping_threshold(problem.observations.len())
-                    && rejected.len() * 10 < problem.observations.len() =>
-            {
-                problem.observations[n].active = false;
-                rejected.push((problem.observations[n].source, v / problem.grid.pixel_size));
-            }
-            _ => {
-                return Ok(Calibration {
-                    problem,
-                    solution,
-                    rejected,
-                    iterations,
-                })
-            }
+            .collect();
+        let worst = tests.iter().map(|t| t.1).fold(0.0, f64::max);
+        let threshold = snooping_threshold(problem.observations.len()).max(worst / 4.0);
+        let budget = problem.observations.len() / 10;
+        let mut batch: Vec<&(usize, f64, f64)> = tests.iter().filter(|t| t.1 > threshold).collect();
+        if batch.is_empty() || rejected.len() >= budget {
+            return Ok(Calibration {
+                problem,
+                solution,
+                rejected,
+                iterations,
+            });
+        }
+        // The largest test values first, never more than 10 % of the observations in all.
+        batch.sort_by(|a, b| b.1.total_cmp(&a.1));
+        batch.truncate(budget - rejected.len());
+        for &&(n, _, v) in &batch {
+            problem.observations[n].active = false;
+            rejected.push((problem.observations[n].source, v / problem.grid.pixel_size));
         }
     }
 }
@@ -538,13 +542,14 @@ mod tests {
         }
     }
 
-    /// 2 % of the observations displaced by 5-20 px are all flagged, few good ones are, and the
-    /// inner orientation stays within 3σ.
+    /// 2 % of the observations displaced by 5-20 px are all flagged (20 seeds), at most two good
+    /// ones per data set are, and the inner orientation stays within 3σ.
     #[test]
     fn outliers_are_flagged() {
         let mut scenario = Scenario::paper();
         scenario.noise.outlier_rate = 0.02;
-        for seed in [1, 2, 3] {
+        let (mut planted, mut extra) = (0, 0);
+        for seed in 1..=20 {
             let sim = simulate(&scenario, seed);
             let cal = run(&sim, &CalibrationOptions::default());
             let flagged: Vec<(&str, &str)> = cal
@@ -574,7 +579,10 @@ mod tests {
             for (k, z) in z_scores(&cal, &scenario.camera.inner).iter().enumerate() {
                 assert!(z.abs() < 3.0, "seed {seed} {}: {z:.2}σ", INNER_NAMES[k]);
             }
+            planted += outliers.len();
+            extra += flagged.len() - outliers.len();
         }
+        println!("20 seeds: {planted} gross errors planted, all flagged, {extra} good ones too");
     }
 
     /// A free network (control for approximations only, minimal constraints) gives the same
