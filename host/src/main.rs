@@ -67,9 +67,9 @@ enum CalibrateWhat {
         /// Target observations CSV.
         #[arg(long)]
         obs: PathBuf,
-        /// Control CSV (point,X,Y,Z,sigma).
+        /// Control CSV (point,X,Y,Z,sigma); without it the network is free (arbitrary datum).
         #[arg(long)]
-        control: PathBuf,
+        control: Option<PathBuf>,
         /// Output camera.json.
         #[arg(long)]
         out: PathBuf,
@@ -154,7 +154,7 @@ fn main() -> anyhow::Result<()> {
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
                 options.free.inner[k] |= on;
             }
-            let file = bundle::calibrate_files(&init, &obs, &control, &out, &options)?;
+            let file = bundle::calibrate_files(&init, &obs, control.as_deref(), &out, &options)?;
             print!("{}", bundle::summary(&file, &options.free));
         }
         Command::Bench { images, targets } => {

@@ -3,9 +3,10 @@
 //! Unknowns: the inner orientation (f, cx, cy, k1 by default, as in the paper), one exterior
 //! orientation per image and every target's coordinates. Control points enter as weighted
 //! observations of their coordinates (their σ); with [`CalibrationOptions::free_network`] they
-//! only give approximate values and the datum is fixed by minimal constraints (the 1st image's
-//! pose and one coordinate of the 2nd image's centre). Stations are initialised by space
-//! resection ([`crate::resection`]), tie points by intersection. Gross errors are removed by data
+//! only give approximate values, and without control the network is free: in both cases the datum
+//! is fixed by minimal constraints (the 1st image's pose and one coordinate of the 2nd image's
+//! centre). Stations are initialised by space resection ([`crate::resection`]) on the control,
+//! or without control by relative orientation ([`relative`]); tie points by intersection. Gross errors are removed by data
 //! snooping: with the test value T = |v|² / (σ0² r̄) (r̄ the mean redundancy number), the
 //! observations above both the threshold and a quarter of the largest T are rejected and the
 //! adjustment is repeated, until no T exceeds the threshold (the largest errors go first, so they
@@ -14,6 +15,7 @@
 //! nothing with 95 % probability), and at least χ²₂(0.999) = 13.8.
 
 pub mod problem;
+pub mod relative;
 pub mod residual;
 pub mod solver;
 
@@ -25,7 +27,7 @@ use crate::io::observations::{image_labels, Observation, PointKind};
 use crate::io::FileError;
 use crate::resection::resect;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
-use nalgebra::{Matrix3, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 use problem::{ControlObservation, FreeParameters, Problem, ProblemObservation};
 use residual::{image_residual, POSE};
 use solver::{solve, Solution, SolveError, SolverOptions};
@@ -132,31 +134,48 @@ pub fn build_problem(
         }
     }
 
-    // Stations by resection from the control each image sees.
-    let mut poses = Vec::with_capacity(images.len());
-    for image in &images {
-        let pts: Vec<(Vector2<f64>, Vector3<f64>)> = targets
-            .iter()
-            .filter(|(_, o)| &o.image == image)
-            .filter_map(|(_, o)| {
-                known
-                    .get(o.point.as_str())
-                    .map(|c| (Vector2::new(o.col, o.row), c.xyz))
-            })
-            .collect();
-        let r = resect(grid, inner, &pts).map_err(|e| {
-            anyhow::anyhow!(
-                "{}: image {image:?}: cannot resect: {e}",
-                obs_path.display()
-            )
-        })?;
-        poses.push(r.exterior);
-    }
+    // Stations by resection from the control each image sees, or without control by relative
+    // orientation and resection on the free network.
     let image_index: HashMap<&str, usize> = images
         .iter()
         .enumerate()
         .map(|(i, l)| (l.as_str(), i))
         .collect();
+    let seen: Vec<relative::Seen> = targets
+        .iter()
+        .map(|(_, o)| {
+            (
+                image_index[o.image.as_str()],
+                point_index[o.point.as_str()],
+                grid.pixel_to_photo(o.col, o.row),
+            )
+        })
+        .collect();
+    let poses = if control.is_empty() {
+        relative::initial_poses(grid, inner, &images, points.len(), &seen)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", obs_path.display()))?
+    } else {
+        let mut poses = Vec::with_capacity(images.len());
+        for image in &images {
+            let pts: Vec<(Vector2<f64>, Vector3<f64>)> = targets
+                .iter()
+                .filter(|(_, o)| &o.image == image)
+                .filter_map(|(_, o)| {
+                    known
+                        .get(o.point.as_str())
+                        .map(|c| (Vector2::new(o.col, o.row), c.xyz))
+                })
+                .collect();
+            let r = resect(grid, inner, &pts).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: image {image:?}: cannot resect: {e}",
+                    obs_path.display()
+                )
+            })?;
+            poses.push(r.exterior);
+        }
+        poses
+    };
     let problem_obs: Vec<ProblemObservation> = targets
         .iter()
         .map(|(n, o)| ProblemObservation {
@@ -179,19 +198,9 @@ pub fn build_problem(
                 sigma: c.sigma,
             }));
         } else {
-            let mut n = Matrix3::zeros();
-            let mut rhs = Vector3::zeros();
-            for o in problem_obs.iter().filter(|o| o.point == j) {
-                let pose = &poses[o.image];
-                let refined = inner.refine(o.photo);
-                let d = (pose.r_cam_world().transpose()
-                    * Vector3::new(refined.x, refined.y, -inner.f))
-                .normalize();
-                let p = Matrix3::identity() - d * d.transpose();
-                n += p;
-                rhs += p * pose.centre;
-            }
-            let x = n.try_inverse().map(|ni| ni * rhs).ok_or_else(|| {
+            let posed: Vec<_> = poses.iter().copied().map(Some).collect();
+            let rays = seen.iter().filter(|s| s.1 == j).map(|s| (s.0, s.2));
+            let x = relative::intersect(inner, &posed, rays).ok_or_else(|| {
                 anyhow::anyhow!("point {label:?}: its rays are parallel, cannot intersect")
             })?;
             xyz.push(x);
@@ -364,18 +373,21 @@ impl Calibration {
     }
 }
 
-/// The whole command: read the three inputs, calibrate, write `out` atomically. Nothing is
-/// written if anything fails.
+/// The whole command: read the inputs, calibrate, write `out` atomically. Nothing is written if
+/// anything fails. Without a control file the network is free (arbitrary datum and scale).
 pub fn calibrate_files(
     init: &Path,
     obs: &Path,
-    control: &Path,
+    control: Option<&Path>,
     out: &Path,
     options: &CalibrationOptions,
 ) -> anyhow::Result<CameraFile> {
     let start = crate::io::camera_file::read_camera(init)?;
     let observations = crate::io::observations::read_observations(obs)?;
-    let control = crate::io::control::read_control(control)?;
+    let control = match control {
+        Some(path) => crate::io::control::read_control(path)?,
+        None => Vec::new(),
+    };
     let problem = build_problem(
         obs,
         &start.grid(),
@@ -610,6 +622,48 @@ mod tests {
         assert!(!cal.camera_file(&sim.camera_obs).correlations.is_empty());
     }
 
+    /// Without any control the network is free: relative orientation, resection, intersection
+    /// give the start; the inner orientation is datum-invariant and comes out within 3σ.
+    #[test]
+    fn no_control_free_network() {
+        let sim = simulate(&Scenario::paper(), 6);
+        let options = CalibrationOptions::default();
+        let problem = build_problem(
+            Path::new("camera_obs.csv"),
+            &sim.camera_init.grid(),
+            &sim.camera_init.inner(),
+            &sim.camera_obs,
+            &[],
+            &options,
+        )
+        .unwrap();
+        assert!(problem.control.iter().all(Option::is_none));
+        assert_eq!(problem.pose_free[0], [false; POSE]);
+        let cal = calibrate(problem, &options).unwrap();
+        for (k, z) in z_scores(&cal, &sim.truth.camera.inner).iter().enumerate() {
+            assert!(z.abs() < 3.0, "{}: {z:.2}σ", INNER_NAMES[k]);
+        }
+        let s0 = cal.solution.sigma0 / paper_sigma0_mm();
+        assert!((0.8..1.2).contains(&s0), "σ0 {s0}");
+        // Two images sharing fewer than 8 points cannot be oriented relatively.
+        let few: Vec<Observation> = sim
+            .camera_obs
+            .iter()
+            .filter(|o| (o.image == "s1" || o.image == "s2") && o.point.as_str() < "T08")
+            .cloned()
+            .collect();
+        let e = build_problem(
+            Path::new("camera_obs.csv"),
+            &sim.camera_init.grid(),
+            &sim.camera_init.inner(),
+            &few,
+            &[],
+            &options,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("needs 8"), "{e}");
+    }
+
     /// Malformed input: an error naming file, line and problem, and no output file.
     #[test]
     fn malformed_input_names_file_and_line_and_writes_nothing() {
@@ -667,7 +721,7 @@ mod tests {
             let e = calibrate_files(
                 &d.join("camera_init.json"),
                 &obs,
-                &d.join("camera_control.csv"),
+                Some(&d.join("camera_control.csv")),
                 &out,
                 &CalibrationOptions::default(),
             )
@@ -682,7 +736,7 @@ mod tests {
         let file = calibrate_files(
             &d.join("camera_init.json"),
             &d.join("camera_obs.csv"),
-            &d.join("camera_control.csv"),
+            Some(&d.join("camera_control.csv")),
             &out,
             &CalibrationOptions::default(),
         )
