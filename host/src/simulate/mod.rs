@@ -402,25 +402,25 @@ mod tests {
 
     fn dots_on_rays_and_plate(sim: &Simulation) {
         let truth = &sim.truth;
-        let (grid, inner) = true_camera(&Scenario::paper());
+        let in_camera = truth.projector_camera().unwrap();
+        let global = truth.projector_global().unwrap();
         let mut checked = 0;
         for img in &truth.plate.images {
+            // The projector in this image's plate frame, through the camera's pose.
             let eo: ExteriorOrientation<f64> = img.camera.into();
             let r_world_cam = eo.r_cam_world().transpose();
-            let rays: Vec<ProjectorRay<f64>> = truth
-                .projector
-                .rays
+            let rays: Vec<ProjectorRay<f64>> = in_camera
+                .rays()
                 .iter()
                 .map(|r| ProjectorRay {
-                    id: r.id,
-                    direction: r_world_cam * v(r.camera),
-                    offset: r_world_cam * v(r.offset_camera),
+                    direction: r_world_cam * r.direction,
+                    offset: r_world_cam * r.offset,
+                    ..*r
                 })
                 .collect();
-            let centre = eo.camera_to_world(&v(truth.projector.centre_camera));
-            let rig = Rig::new(grid, inner, &eo, Projector::new(centre, rays).unwrap());
-            let m = Matrix3::from(img.plate_to_global.rotation).transpose();
-            let t = v(img.plate_to_global.translation);
+            let centre = eo.camera_to_world(&in_camera.centre());
+            let projector = Projector::new(centre, rays).unwrap();
+            let rig = Rig::new(truth.grid(), truth.inner(), &eo, projector);
             for o in sim.plate_obs.iter().filter(|o| o.image == img.image) {
                 let Some(id) = o.ray_id() else { continue };
                 let hit = rig
@@ -433,10 +433,10 @@ mod tests {
                     hit.point
                 );
                 // The same point in the global frame lies on the global ray.
-                let g = m * hit.point + t;
-                let ray = truth.projector.rays.iter().find(|r| r.id == id).unwrap();
-                let from = g - v(truth.projector.centre_global) - v(ray.offset_global);
-                let miss = (from - v(ray.global) * from.dot(&v(ray.global))).norm();
+                let g = img.plate_to_global.apply(&hit.point);
+                let ray = global.ray(id).unwrap();
+                let from = g - ray.point;
+                let miss = (from - ray.direction * from.dot(&ray.direction)).norm();
                 assert!(miss < 1e-6, "dot {id}: {miss} mm off its global ray");
                 checked += 1;
             }
