@@ -174,15 +174,17 @@ fn main() -> anyhow::Result<()> {
                     &options,
                 )?;
                 let cal = bundle::calibrate(problem, &options)?;
+                let file = cal.camera_file(&sim.camera_obs);
                 println!(
-                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm",
+                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm, {} correlations > 0.9",
                     scenario.name,
                     cal.problem.images.len(),
                     cal.problem.xyz.len(),
                     sim.camera_obs.len(),
                     start.elapsed().as_secs_f64(),
                     cal.iterations,
-                    cal.solution.sigma0
+                    cal.solution.sigma0,
+                    file.correlations.len()
                 );
             }
         }

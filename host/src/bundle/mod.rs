@@ -329,14 +329,15 @@ impl Calibration {
             .collect();
         let total: (f64, usize) = sum.iter().fold((0.0, 0), |a, s| (a.0 + s.0, a.1 + s.1));
         let m = cov.nrows();
+        let names = p.camera_state_names();
         let mut correlations = Vec::new();
         for a in 0..m {
             for b in a + 1..m {
                 let r = cov[(a, b)] / (cov[(a, a)] * cov[(b, b)]).sqrt();
                 if r.abs() > 0.9 {
                     correlations.push(Correlation {
-                        a: p.camera_state_name(a),
-                        b: p.camera_state_name(b),
+                        a: names[a].clone(),
+                        b: names[b].clone(),
                         r,
                     });
                 }
@@ -612,6 +613,10 @@ mod tests {
         let cal = run(&sim, &options);
         assert_eq!(cal.problem.num_states_inner(), 7);
         assert_eq!(cal.problem.state_index_pose(0, 0), None);
+        let names = cal.problem.camera_state_names();
+        assert_eq!(names[..2], ["f", "cx"]);
+        assert_eq!(names[cal.problem.state_index_pose(2, 5).unwrap()], "s3.Z0");
+        assert_eq!(names.len(), 7 + 6 * 9 - 7);
         for (k, t) in sim.truth.camera.inner.to_array().iter().enumerate() {
             if options.free.inner[k] {
                 let z =
