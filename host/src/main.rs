@@ -214,9 +214,9 @@ enum CalibrateWhat {
         /// Target observations CSV.
         #[arg(long)]
         obs: PathBuf,
-        /// Control CSV (point,X,Y,Z,sigma).
+        /// Control CSV (point,X,Y,Z,sigma); without it the network is free (arbitrary datum).
         #[arg(long)]
-        control: PathBuf,
+        control: Option<PathBuf>,
         /// Output camera.json.
         #[arg(long)]
         out: PathBuf,
@@ -344,7 +344,7 @@ fn main() -> anyhow::Result<()> {
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
                 options.free.inner[k] |= on;
             }
-            let file = bundle::calibrate_files(&init, &obs, &control, &out, &options)?;
+            let file = bundle::calibrate_files(&init, &obs, control.as_deref(), &out, &options)?;
             print!("{}", bundle::summary(&file, &options.free));
         }
         Command::Device { link, what } => match what {
@@ -393,15 +393,17 @@ fn main() -> anyhow::Result<()> {
                     &options,
                 )?;
                 let cal = bundle::calibrate(problem, &options)?;
+                let file = cal.camera_file(&sim.camera_obs);
                 println!(
-                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm",
+                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm, {} correlations > 0.9",
                     scenario.name,
                     cal.problem.images.len(),
                     cal.problem.xyz.len(),
                     sim.camera_obs.len(),
                     start.elapsed().as_secs_f64(),
                     cal.iterations,
-                    cal.solution.sigma0
+                    cal.solution.sigma0,
+                    file.correlations.len()
                 );
             }
         }

@@ -82,6 +82,28 @@ fn simulate_calibrate_resect() {
     assert!((z0 - 1842.675).abs() < 15.0, "Z0 {z0}");
     assert_eq!(poses["stations"].as_array().unwrap().len(), 3);
 
+    // Without control: a free network, same f within 3σ.
+    let out = deltaz(&[
+        "calibrate",
+        "camera",
+        "--init",
+        &path(&sim, "camera_init.json"),
+        "--obs",
+        &path(&sim, "camera_obs.csv"),
+        "--out",
+        &path(d, "camera_free.json"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let free: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("camera_free.json")).unwrap())
+            .unwrap();
+    let f_free = free["inner"]["f"].as_f64().unwrap();
+    assert!((f_free - 46.981).abs() < 3.0 * free["sigma"]["f"].as_f64().unwrap());
+
     // A bad control file: error naming it, and no output.
     std::fs::write(d.join("bad.csv"), "point,X,Y\nT01,1,2\n").unwrap();
     let out = deltaz(&[

@@ -124,22 +124,23 @@ impl Problem {
         (self.image_sigma_mm / c.sigma.max(1e-6)).powi(2)
     }
 
-    /// A readable name of camera state `s` ("f", "s3.Z0", …).
-    pub fn camera_state_name(&self, s: usize) -> String {
+    /// Readable names of the camera states, by state index ("f", "s3.Z0", …).
+    pub fn camera_state_names(&self) -> Vec<String> {
         const POSE_NAMES: [&str; POSE] = ["kappa", "phi", "omega", "X0", "Y0", "Z0"];
-        for k in 0..INNER {
-            if self.state_index_inner(k) == Some(s) {
-                return crate::io::camera_file::INNER_NAMES[k].to_owned();
+        let mut names = vec![String::new(); self.num_states_camera()];
+        for (k, name) in crate::io::camera_file::INNER_NAMES.iter().enumerate() {
+            if let Some(s) = self.state_index_inner(k) {
+                names[s] = (*name).to_owned();
             }
         }
-        for i in 0..self.images.len() {
-            for (k, name) in POSE_NAMES.iter().enumerate() {
-                if self.state_index_pose(i, k) == Some(s) {
-                    return format!("{}.{name}", self.images[i]);
-                }
+        let mut s = self.num_states_inner();
+        for (image, free) in self.images.iter().zip(&self.pose_free) {
+            for (name, _) in POSE_NAMES.iter().zip(free).filter(|(_, f)| **f) {
+                names[s] = format!("{image}.{name}");
+                s += 1;
             }
         }
-        format!("state{s}")
+        names
     }
 
     /// Applies a camera-state step and point steps.

@@ -260,21 +260,24 @@ fn reduce(normal: &Normal, mu: f64) -> Result<Reduced, SolveError> {
         }
         let vi = vd.try_inverse().ok_or(SolveError::Singular)?;
         let y = w * vi; // rows × 3
-        let ywt = &y * w.transpose();
         let yg = &y * g_p;
         for (a, &ra) in rows.iter().enumerate() {
             b[ra] -= yg[a];
         }
-        // Column by column: both matrices are column-major.
+        // The lower triangle of Y Wᵀ, column by column (column-major storage).
+        let (y0, y1, y2) = (y.column(0), y.column(1), y.column(2));
         for (c, &rc) in rows.iter().enumerate() {
-            let from = ywt.column(c);
+            let (w0, w1, w2) = (w[(c, 0)], w[(c, 1)], w[(c, 2)]);
             let mut to = s.column_mut(rc);
             for (a, &ra) in rows.iter().enumerate() {
-                to[ra] -= from[a];
+                if ra >= rc {
+                    to[ra] -= y0[a] * w0 + y1[a] * w1 + y2[a] * w2;
+                }
             }
         }
         v_inv.push(vi);
     }
+    s.fill_upper_triangle_with_lower_triangle();
     Ok(Reduced { s, b, v_inv })
 }
 

@@ -1,9 +1,11 @@
 //! Control points: CSV `point,X,Y,Z,sigma` (mm; `sigma` optional, 0 = fixed).
 
 use super::atomic::write_atomic;
-use super::{header_columns, number_field, optional_column, record_line, records, text_field};
+use super::text_field;
+use super::{csv_text, header_columns, number_field, optional_column, record_line, records};
 use super::{FileError, Result};
 use nalgebra::Vector3;
+use std::borrow::Cow;
 use std::collections::HashSet;
 use std::path::Path;
 
@@ -59,14 +61,18 @@ pub fn read_control(path: &Path) -> Result<Vec<ControlPoint>> {
 
 /// The CSV text of control points.
 pub fn control_csv(points: &[ControlPoint]) -> String {
-    let mut text = String::from("point,X,Y,Z,sigma\n");
-    for p in points {
-        text.push_str(&format!(
-            "{},{:.4},{:.4},{:.4},{}\n",
-            p.point, p.xyz.x, p.xyz.y, p.xyz.z, p.sigma
-        ));
-    }
-    text
+    csv_text(
+        &["point", "X", "Y", "Z", "sigma"],
+        points.iter().map(|p| {
+            vec![
+                Cow::from(p.point.as_str()),
+                Cow::from(format!("{:.4}", p.xyz.x)),
+                Cow::from(format!("{:.4}", p.xyz.y)),
+                Cow::from(format!("{:.4}", p.xyz.z)),
+                Cow::from(p.sigma.to_string()),
+            ]
+        }),
+    )
 }
 
 /// Writes control points atomically.

@@ -154,3 +154,17 @@ pub(crate) fn records(path: &Path) -> Result<(csv::StringRecord, Vec<csv::String
     }
     Ok((header, rows))
 }
+
+/// CSV text of a header and rows, fields quoted where needed (labels with commas or quotes).
+pub(crate) fn csv_text<'a>(
+    header: &[&str],
+    rows: impl Iterator<Item = Vec<std::borrow::Cow<'a, str>>>,
+) -> String {
+    let mut writer = csv::Writer::from_writer(Vec::new());
+    // Writing records into memory cannot fail.
+    let _ = writer.write_record(header);
+    for row in rows {
+        let _ = writer.write_record(row.iter().map(|f| f.as_ref()));
+    }
+    String::from_utf8(writer.into_inner().unwrap_or_default()).unwrap_or_default()
+}

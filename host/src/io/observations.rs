@@ -6,8 +6,10 @@
 //! (`dot`); without it every point is a target.
 
 use super::atomic::write_atomic;
-use super::{header_columns, number_field, optional_column, record_line, records, text_field};
+use super::text_field;
+use super::{csv_text, header_columns, number_field, optional_column, record_line, records};
 use super::{FileError, Result};
+use std::borrow::Cow;
 use std::collections::HashSet;
 use std::path::Path;
 
@@ -126,23 +128,26 @@ pub fn read_observations(path: &Path) -> Result<Vec<Observation>> {
 /// The CSV text of observations; the `kind` column is written when any observation is a dot.
 pub fn observations_csv(observations: &[Observation]) -> String {
     let with_kind = observations.iter().any(|o| o.kind == PointKind::Dot);
-    let mut text = String::from(if with_kind {
-        "image,point,col,row,kind\n"
+    let header: &[&str] = if with_kind {
+        &["image", "point", "col", "row", "kind"]
     } else {
-        "image,point,col,row\n"
-    });
-    for o in observations {
-        text.push_str(&format!(
-            "{},{},{:.4},{:.4}",
-            o.image, o.point, o.col, o.row
-        ));
-        if with_kind {
-            text.push(',');
-            text.push_str(o.kind.label());
-        }
-        text.push('\n');
-    }
-    text
+        &["image", "point", "col", "row"]
+    };
+    csv_text(
+        header,
+        observations.iter().map(|o| {
+            let mut row: Vec<Cow<str>> = vec![
+                Cow::from(o.image.as_str()),
+                Cow::from(o.point.as_str()),
+                Cow::from(format!("{:.4}", o.col)),
+                Cow::from(format!("{:.4}", o.row)),
+            ];
+            if with_kind {
+                row.push(Cow::from(o.kind.label()));
+            }
+            row
+        }),
+    )
 }
 
 /// Writes observations atomically.
@@ -175,7 +180,7 @@ mod tests {
     #[test]
     fn round_trip_with_dots() {
         let mut obs = vec![
-            Observation::target("p1", "C01", 12.25, 300.5),
+            Observation::target("p1", "C01, \"left\"", 12.25, 300.5),
             Observation::target("p1", "203", 400.0, 10.125),
         ];
         obs[1].kind = PointKind::Dot;
@@ -186,6 +191,7 @@ mod tests {
         assert_eq!(back[1].ray_id(), Some(203));
         assert_eq!((back[0].col, back[0].row, back[0].line), (12.25, 300.5, 2));
         assert_eq!(back[0].kind, PointKind::Control);
+        assert_eq!(back[0].point, "C01, \"left\"");
     }
 
     #[test]

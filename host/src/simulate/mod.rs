@@ -368,30 +368,59 @@ mod tests {
 
     /// Without noise, every dot of every plate image lies on its true ray in the global frame
     /// once the plate is moved by `plate_to_global`, and reconstructs onto the plate (Z = 0) with
-    /// the shared rig in the plate frame.
+    /// the shared rig in the plate frame; also with projector distortion and non-central rays.
     #[test]
     fn noise_free_dots_lie_on_their_rays_and_the_plate() {
-        let sim = simulate(&quiet_paper(), 1);
+        let central = simulate(&quiet_paper(), 1);
+        dots_on_rays_and_plate(&central);
+        let mut warped = quiet_paper();
+        warped.rig.pattern.distortion = 0.5;
+        warped.rig.pattern.noncentral_mm = 30.0;
+        let sim = simulate(&warped, 1);
+        dots_on_rays_and_plate(&sim);
+        let offsets = sim
+            .truth
+            .projector
+            .rays
+            .iter()
+            .map(|r| v(r.offset_camera).norm());
+        assert!(offsets.fold(0.0, f64::max) > 5.0);
+        // Distortion moves the dots by pixels, most near the pattern's edge.
+        let moved = sim
+            .plate_obs
+            .iter()
+            .filter_map(|a| {
+                let b = central
+                    .plate_obs
+                    .iter()
+                    .find(|b| b.image == a.image && b.point == a.point)?;
+                Some(((a.col - b.col).powi(2) + (a.row - b.row).powi(2)).sqrt())
+            })
+            .fold(0.0, f64::max);
+        assert!(moved > 3.0, "{moved}");
+    }
+
+    fn dots_on_rays_and_plate(sim: &Simulation) {
         let truth = &sim.truth;
-        let (grid, inner) = true_camera(&Scenario::paper());
+        let in_camera = truth.projector_camera().unwrap();
+        let global = truth.projector_global().unwrap();
         let mut checked = 0;
         for img in &truth.plate.images {
+            // The projector in this image's plate frame, through the camera's pose.
             let eo: ExteriorOrientation<f64> = img.camera.into();
             let r_world_cam = eo.r_cam_world().transpose();
-            let rays: Vec<ProjectorRay<f64>> = truth
-                .projector
-                .rays
+            let rays: Vec<ProjectorRay<f64>> = in_camera
+                .rays()
                 .iter()
                 .map(|r| ProjectorRay {
-                    id: r.id,
-                    direction: r_world_cam * v(r.camera),
-                    offset: r_world_cam * v(r.offset_camera),
+                    direction: r_world_cam * r.direction,
+                    offset: r_world_cam * r.offset,
+                    ..*r
                 })
                 .collect();
-            let centre = eo.camera_to_world(&v(truth.projector.centre_camera));
-            let rig = Rig::new(grid, inner, &eo, Projector::new(centre, rays).unwrap());
-            let m = Matrix3::from(img.plate_to_global.rotation).transpose();
-            let t = v(img.plate_to_global.translation);
+            let centre = eo.camera_to_world(&in_camera.centre());
+            let projector = Projector::new(centre, rays).unwrap();
+            let rig = Rig::new(truth.grid(), truth.inner(), &eo, projector);
             for o in sim.plate_obs.iter().filter(|o| o.image == img.image) {
                 let Some(id) = o.ray_id() else { continue };
                 let hit = rig
@@ -404,15 +433,21 @@ mod tests {
                     hit.point
                 );
                 // The same point in the global frame lies on the global ray.
-                let g = m * hit.point + t;
-                let ray = truth.projector.rays.iter().find(|r| r.id == id).unwrap();
-                let from = g - v(truth.projector.centre_global);
-                let miss = (from - v(ray.global) * from.dot(&v(ray.global))).norm();
+                let g = img.plate_to_global.apply(&hit.point);
+                let ray = global.ray(id).unwrap();
+                let from = g - ray.point;
+                let miss = (from - ray.direction * from.dot(&ray.direction)).norm();
                 assert!(miss < 1e-6, "dot {id}: {miss} mm off its global ray");
                 checked += 1;
             }
         }
-        assert_eq!(checked, 3 * 440);
+        let dots = sim
+            .plate_obs
+            .iter()
+            .filter(|o| o.ray_id().is_some())
+            .count();
+        assert_eq!(checked, dots);
+        assert!(dots > 3 * 400, "{dots} dots");
     }
 
     /// The same seed gives the same data; the image noise has the scenario's σ.

@@ -3,8 +3,10 @@
 use super::pattern::PatternRay;
 use super::Scenario;
 use crate::io::camera_file::{InnerParams, PoseParams, Station};
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
-use nalgebra::Vector3;
+use deltaz_shared::projector::{Projector, ProjectorRay};
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// The format tag of `truth.json`.
@@ -61,6 +63,13 @@ pub struct Motion {
     pub rotation: [[f64; 3]; 3],
     /// Translation (mm).
     pub translation: [f64; 3],
+}
+
+impl Motion {
+    /// X' = rotation · X + translation.
+    pub fn apply(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        Matrix3::from(self.rotation).transpose() * x + Vector3::from(self.translation)
+    }
 }
 
 /// One plate image.
@@ -228,6 +237,49 @@ impl Truth {
                 outliers,
             },
         }
+    }
+
+    /// The true pixel mapping.
+    pub fn grid(&self) -> PixelGrid<f64> {
+        PixelGrid {
+            pixel_size: self.camera.pixel_size,
+            width: self.camera.image_size[0],
+            height: self.camera.image_size[1],
+            origin_col: self.camera.origin[0],
+            origin_row: self.camera.origin[1],
+        }
+    }
+
+    /// The true inner orientation.
+    pub fn inner(&self) -> InnerOrientation<f64> {
+        self.camera.inner.into()
+    }
+
+    /// The true projector in the camera system (centre, directions and offsets).
+    pub fn projector_camera(
+        &self,
+    ) -> deltaz_shared::Result<Projector<f64, Vec<ProjectorRay<f64>>>> {
+        let p = &self.projector;
+        let rays = p.rays.iter().map(|r| ProjectorRay {
+            id: r.id,
+            direction: Vector3::from(r.camera),
+            offset: Vector3::from(r.offset_camera),
+        });
+        Projector::new(Vector3::from(p.centre_camera), rays.collect())
+    }
+
+    /// The true projector in the global frame (the 1st plate image's, as the paper's Tables 3
+    /// and 4).
+    pub fn projector_global(
+        &self,
+    ) -> deltaz_shared::Result<Projector<f64, Vec<ProjectorRay<f64>>>> {
+        let p = &self.projector;
+        let rays = p.rays.iter().map(|r| ProjectorRay {
+            id: r.id,
+            direction: Vector3::from(r.global),
+            offset: Vector3::from(r.offset_global),
+        });
+        Projector::new(Vector3::from(p.centre_global), rays.collect())
     }
 
     /// A true point by label.
