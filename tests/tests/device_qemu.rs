@@ -57,7 +57,9 @@ fn qemu_upload_stream_reset() {
             worst = worst.max((got.point - host).norm());
         }
         if frame.len() == 440 && ticks_440.is_none() {
-            ticks_440 = Some(device.stats().expect("stats").last_compute_ticks);
+            let stats = device.stats().expect("stats");
+            ticks_440 = Some(stats.last_compute_ticks);
+            assert_eq!(stats.last_compute_points, 440);
         }
     }
     let rate = total as f64 / streamed.as_secs_f64();
@@ -74,6 +76,12 @@ fn qemu_upload_stream_reset() {
         ticks * 40 / 440
     );
     assert!(ticks > 0, "SysTick counts under -icount");
+    let stack = device.stats().expect("stats").stack_peak;
+    println!("stack high-water mark after the stream: {stack} bytes");
+    // The server (41 KB) and a frame's request and response live on the stack, and building
+    // the f32 rig at a commit moves its 14.5 KB table a few times: the gauge must see all that,
+    // and the real board's 192 KB of SRAM (Nucleo-F429ZI) must hold the peak.
+    assert!((60_000..180_000).contains(&stack), "stack peak {stack} B");
 
     // A reset (SYSRESETREQ) keeps the calibration region: same fingerprint, same results.
     device.reset().expect("reset");
