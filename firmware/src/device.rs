@@ -101,11 +101,6 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         self.reset
     }
 
-    /// The store (for inspection).
-    pub fn store(&self) -> &Store<F> {
-        &self.store
-    }
-
     /// Give the store back (a simulated reboot builds a new device from it).
     pub fn into_store(self) -> Store<F> {
         self.store

@@ -143,11 +143,6 @@ impl<T: Transport> Device<T> {
         self
     }
 
-    /// The transport.
-    pub fn transport_mut(&mut self) -> &mut T {
-        &mut self.transport
-    }
-
     /// Close the client, keeping the transport.
     pub fn into_transport(self) -> T {
         self.transport
