@@ -162,8 +162,12 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
 
     fn chunk(&mut self, offset: usize, data: &[u8]) -> Result<ResponseBody, ErrorCode> {
         let upload = self.upload.as_mut().ok_or(ErrorCode::NoUpload)?;
+        // `received` ≤ `len` ≤ MAX_CALIBRATION, so `end` cannot overflow once offset matches.
+        if offset != upload.received {
+            return Err(ErrorCode::ChunkOutOfOrder);
+        }
         let end = offset + data.len();
-        if offset != upload.received || end > upload.len {
+        if end > upload.len {
             return Err(ErrorCode::ChunkOutOfOrder);
         }
         self.staging

@@ -174,6 +174,11 @@ fn every_bad_frame_gets_its_answer() {
         answer(&mut device, &request(24, chunk(8))),
         error(24, ErrorCode::ChunkOutOfOrder)
     );
+    // An offset near 2³² must not overflow on a 32-bit device.
+    assert_eq!(
+        answer(&mut device, &request(24, chunk(u32::MAX - 3))),
+        error(24, ErrorCode::ChunkOutOfOrder)
+    );
     answer(&mut device, &request(25, chunk(0)));
     assert_eq!(
         answer(&mut device, &request(26, RequestBody::UploadCommit)),
