@@ -24,20 +24,25 @@ pub const MAX_CALIBRATION: usize = 16 * 1024;
 /// The device's rig: f32, centred on the camera (its camera centre is zero).
 pub type DeviceRig = Rig<f32, heapless::Vec<ProjectorRay<f32>, MAX_RAYS>>;
 
-/// A tick counter for timing the compute (SysTick on a board).
-pub trait Clock {
+/// The board's instruments: a tick counter timing the compute (SysTick on a board) and, where
+/// the board measures it, the stack's high-water mark.
+pub trait Probe {
     /// The counter now.
     fn now(&mut self) -> u32;
-    /// Ticks since `start` (a reading of [`Clock::now`]); a full 32-bit up-counter by default.
+    /// Ticks since `start` (a reading of [`Probe::now`]); a full 32-bit up-counter by default.
     fn since(&mut self, start: u32) -> u32 {
         self.now().wrapping_sub(start)
     }
+    /// The most stack used since boot (bytes); 0 when the board does not measure it.
+    fn stack_peak(&mut self) -> u32 {
+        0
+    }
 }
 
-/// No clock: every compute takes 0 ticks.
-pub struct NoClock;
+/// No instruments: every compute takes 0 ticks.
+pub struct NoProbe;
 
-impl Clock for NoClock {
+impl Probe for NoProbe {
     fn now(&mut self) -> u32 {
         0
     }
@@ -57,10 +62,10 @@ struct Upload {
     received: usize,
 }
 
-/// The device logic, generic over the calibration flash and the tick clock.
-pub struct Device<F, C> {
+/// The device logic, generic over the calibration flash and the board's instruments.
+pub struct Device<F, P> {
     store: Store<F>,
-    clock: C,
+    probe: P,
     active: Option<Active>,
     upload: Option<Upload>,
     staging: [u8; MAX_CALIBRATION],
@@ -68,12 +73,12 @@ pub struct Device<F, C> {
     reset: bool,
 }
 
-impl<F: NorFlash, C: Clock> Device<F, C> {
+impl<F: NorFlash, P: Probe> Device<F, P> {
     /// Boot: load the newest valid calibration from the store, if any.
-    pub fn boot(store: Store<F>, clock: C) -> Self {
+    pub fn boot(store: Store<F>, probe: P) -> Self {
         let mut device = Self {
             store,
-            clock,
+            probe,
             active: None,
             upload: None,
             staging: [0; MAX_CALIBRATION],
@@ -83,6 +88,7 @@ impl<F: NorFlash, C: Clock> Device<F, C> {
                 points: 0,
                 last_compute_ticks: 0,
                 last_compute_points: 0,
+                stack_peak: 0,
             },
             reset: false,
         };
@@ -93,11 +99,6 @@ impl<F: NorFlash, C: Clock> Device<F, C> {
     /// Whether a `Reset` was answered: the board should restart now.
     pub fn reset_requested(&self) -> bool {
         self.reset
-    }
-
-    /// The store (for inspection).
-    pub fn store(&self) -> &Store<F> {
-        &self.store
     }
 
     /// Give the store back (a simulated reboot builds a new device from it).
@@ -119,7 +120,10 @@ impl<F: NorFlash, C: Clock> Device<F, C> {
             RequestBody::UploadChunk { offset, data } => self.chunk(offset as usize, &data),
             RequestBody::UploadCommit => self.commit(),
             RequestBody::Compute { centroids } => self.compute(&centroids),
-            RequestBody::Stats => Ok(ResponseBody::Stats(self.stats)),
+            RequestBody::Stats => {
+                self.stats.stack_peak = self.probe.stack_peak();
+                Ok(ResponseBody::Stats(self.stats))
+            }
             RequestBody::Reset => {
                 self.reset = true;
                 Ok(ResponseBody::Resetting)
@@ -158,8 +162,12 @@ impl<F: NorFlash, C: Clock> Device<F, C> {
 
     fn chunk(&mut self, offset: usize, data: &[u8]) -> Result<ResponseBody, ErrorCode> {
         let upload = self.upload.as_mut().ok_or(ErrorCode::NoUpload)?;
+        // `received` ≤ `len` ≤ MAX_CALIBRATION, so `end` cannot overflow once offset matches.
+        if offset != upload.received {
+            return Err(ErrorCode::ChunkOutOfOrder);
+        }
         let end = offset + data.len();
-        if offset != upload.received || end > upload.len {
+        if end > upload.len {
             return Err(ErrorCode::ChunkOutOfOrder);
         }
         self.staging
@@ -200,7 +208,7 @@ impl<F: NorFlash, C: Clock> Device<F, C> {
     fn compute(&mut self, centroids: &[Centroid]) -> Result<ResponseBody, ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
         let bits = active.summary.centroid_bits;
-        let start = self.clock.now();
+        let start = self.probe.now();
         let points = centroids
             .iter()
             .map(|c| {
@@ -211,7 +219,7 @@ impl<F: NorFlash, C: Clock> Device<F, C> {
                 }
             })
             .collect();
-        self.stats.last_compute_ticks = self.clock.since(start);
+        self.stats.last_compute_ticks = self.probe.since(start);
         self.stats.last_compute_points = centroids.len() as u16;
         self.stats.points = self.stats.points.wrapping_add(centroids.len() as u32);
         Ok(ResponseBody::Points {

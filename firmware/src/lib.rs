@@ -6,14 +6,14 @@
 //! - [`store`]: the power-fail safe two-slot calibration store over a `NorFlash`;
 //! - [`ram_flash`]: a NOR flash in RAM with power cuts, for the host and the tests;
 //! - [`smoke`]: the boot-time smoke computation;
-//! - `systick` (board targets only): SysTick as the compute clock.
+//! - `probe` (board targets only): SysTick and the stack high-water mark.
 #![cfg_attr(target_os = "none", no_std)]
 #![deny(missing_docs)]
 
 pub mod device;
+#[cfg(target_os = "none")]
+pub mod probe;
 pub mod ram_flash;
 pub mod server;
 pub mod smoke;
 pub mod store;
-#[cfg(target_os = "none")]
-pub mod systick;

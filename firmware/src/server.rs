@@ -10,7 +10,7 @@
 //! | CRC good, unknown kind or undecodable | `Error(Frame(..))` with the request's seq |
 //! | a request | the device's response |
 
-use crate::device::{Clock, Device};
+use crate::device::{Device, Probe};
 use deltaz_shared::protocol::{
     decode_request, encode_frame, ErrorCode, Response, ResponseBody, WireError, MAX_FRAME,
 };
@@ -18,17 +18,17 @@ use embedded_io::{Read, Write};
 use embedded_storage::nor_flash::NorFlash;
 
 /// A device behind its framing.
-pub struct Server<F, C> {
-    device: Device<F, C>,
+pub struct Server<F, P> {
+    device: Device<F, P>,
     rx: [u8; MAX_FRAME],
     rx_len: usize,
     overflow: bool,
     tx: [u8; MAX_FRAME],
 }
 
-impl<F: NorFlash, C: Clock> Server<F, C> {
+impl<F: NorFlash, P: Probe> Server<F, P> {
     /// Serve `device`.
-    pub fn new(device: Device<F, C>) -> Self {
+    pub fn new(device: Device<F, P>) -> Self {
         Self {
             device,
             rx: [0; MAX_FRAME],
@@ -39,12 +39,12 @@ impl<F: NorFlash, C: Clock> Server<F, C> {
     }
 
     /// The device.
-    pub fn device(&self) -> &Device<F, C> {
+    pub fn device(&self) -> &Device<F, P> {
         &self.device
     }
 
     /// Give the device back.
-    pub fn into_device(self) -> Device<F, C> {
+    pub fn into_device(self) -> Device<F, P> {
         self.device
     }
 

@@ -57,3 +57,57 @@ fn another_calibration_is_named() {
         "the device holds calibration 000000000000aaaa, not 000000000000bbbb"
     );
 }
+
+/// The in-process device behind a line that damages chosen sends (one bit, never making a zero).
+struct Flaky {
+    inner: deltaz_host::link::InProcess,
+    sends: usize,
+    damage: fn(usize) -> bool,
+}
+
+impl Transport for Flaky {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.sends += 1;
+        let mut bytes = bytes.to_vec();
+        if (self.damage)(self.sends) {
+            let mid = bytes.len() / 2;
+            bytes[mid] ^= if bytes[mid] == 0x40 { 0x20 } else { 0x40 };
+        }
+        self.inner.send(&bytes)
+    }
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        self.inner.recv(buf, timeout)
+    }
+}
+
+#[test]
+fn damaged_frames_are_sent_again() {
+    let flaky = |damage| Flaky {
+        inner: deltaz_host::link::InProcess::new(),
+        sends: 0,
+        damage,
+    };
+    // Sends 2 and 4 (the one chunk and the commit) arrive damaged once each.
+    let mut device =
+        Device::new(flaky(|n| n == 2 || n == 4)).with_timeout(Duration::from_millis(10));
+    let summary = device.upload(&paper_rig(), 0xF1A).unwrap();
+    assert_eq!(summary.fingerprint, 0xF1A);
+    let sends = device.into_transport().sends;
+    // Begin, the chunks, commit and Info, plus the two repeats.
+    let chunks = deltaz_host::link::calibration_blob(
+        &paper_rig(),
+        0xF1A,
+        deltaz_shared::rig::Method::ClosestApproach,
+    )
+    .unwrap()
+    .len()
+    .div_ceil(deltaz_shared::protocol::CHUNK_SIZE);
+    assert_eq!(sends, 1 + chunks + 1 + 1 + 2);
+    // A line that damages everything: three sends, then the device's answer is the error.
+    let mut device = Device::new(flaky(|_| true)).with_timeout(Duration::from_millis(10));
+    match device.info() {
+        Err(DeviceError::Device(deltaz_shared::protocol::ErrorCode::Frame(_))) => {}
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(device.into_transport().sends, 3);
+}

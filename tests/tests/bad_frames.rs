@@ -174,6 +174,11 @@ fn every_bad_frame_gets_its_answer() {
         answer(&mut device, &request(24, chunk(8))),
         error(24, ErrorCode::ChunkOutOfOrder)
     );
+    // An offset near 2³² must not overflow on a 32-bit device.
+    assert_eq!(
+        answer(&mut device, &request(24, chunk(u32::MAX - 3))),
+        error(24, ErrorCode::ChunkOutOfOrder)
+    );
     answer(&mut device, &request(25, chunk(0)));
     assert_eq!(
         answer(&mut device, &request(26, RequestBody::UploadCommit)),
@@ -280,4 +285,65 @@ fn fuzz_a_million_frames() {
     }
     assert_eq!(answers, frames, "one answer per frame");
     assert!(frames > 1_000_000);
+}
+
+/// Calibrations that decode but are not valid: each is refused before the flash is touched and
+/// the previous calibration stays active.
+#[test]
+fn invalid_calibrations_are_refused() {
+    use deltaz_shared::protocol::calibration::{decode_calibration, encode_calibration, WireRay};
+    let mut device = InProcess::new();
+    let good = calibration_blob(&paper_rig(), 1, Method::ClosestApproach).unwrap();
+    let committed = upload(&mut device, &good, CRC.checksum(&good), 1);
+    assert!(matches!(
+        committed.body,
+        ResponseBody::Committed { fingerprint: 1, .. }
+    ));
+
+    let mut rays = Vec::new();
+    let header = decode_calibration(&good, |r| {
+        rays.push(r);
+        true
+    })
+    .unwrap();
+    let ray = rays[0];
+    let tilted = |id: u16, dx: f32| WireRay {
+        id,
+        direction: [ray.direction[0] + dx, ray.direction[1], ray.direction[2]],
+        ..ray
+    };
+    let unit = |id| tilted(id, 0.0);
+    let mut nan_f = header.clone();
+    nan_f.inner.f = f32::NAN;
+    let mut zero_pixel = header.clone();
+    zero_pixel.grid.pixel_size = 0.0;
+    let too_many: Vec<WireRay> = (0..513).map(unit).collect();
+    let cases: Vec<(&str, _, Vec<WireRay>)> = vec![
+        ("NaN focal length", nan_f, vec![ray]),
+        ("zero pixel size", zero_pixel, vec![ray]),
+        ("unsorted rays", header.clone(), vec![unit(5), unit(3)]),
+        ("duplicate ray", header.clone(), vec![unit(5), unit(5)]),
+        ("non-unit direction", header.clone(), vec![tilted(5, 0.01)]),
+        ("513 rays", header.clone(), too_many),
+    ];
+    for (i, (what, mut h, rays)) in cases.into_iter().enumerate() {
+        h.rays = rays.len() as u16;
+        h.fingerprint = 100 + i as u64;
+        let mut blob = vec![0u8; 16 * 1024];
+        let len = encode_calibration(&h, rays, &mut blob).unwrap();
+        blob.truncate(len);
+        let seq = 10 + i as u32;
+        assert_eq!(
+            upload(&mut device, &blob, CRC.checksum(&blob), seq),
+            error(seq, ErrorCode::InvalidCalibration),
+            "{what}"
+        );
+        match answer(&mut device, &request(seq, RequestBody::Info)).body {
+            ResponseBody::Info(info) => {
+                let c = info.calibration.unwrap();
+                assert_eq!((c.fingerprint, c.generation), (1, 1), "{what}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 }

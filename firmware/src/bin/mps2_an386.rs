@@ -16,9 +16,9 @@ mod board {
     use cortex_m::peripheral::SCB;
     use cortex_m_rt::entry;
     use deltaz_firmware::device::{Device, MAX_CALIBRATION};
+    use deltaz_firmware::probe::CortexProbe;
     use deltaz_firmware::server::Server;
     use deltaz_firmware::store::{Store, HEADER};
-    use deltaz_firmware::systick::SysTickClock;
     use embedded_io::{ErrorType, Read, Write};
     use embedded_storage::nor_flash::{
         check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash,
@@ -167,10 +167,10 @@ mod board {
             None => writeln!(uart, "deltaz smoke degenerate"),
         };
         uart.write_byte(0);
-        let clock = cortex_m::Peripherals::take().map(|p| SysTickClock::start(p.SYST));
+        let probe = cortex_m::Peripherals::take().map(|p| CortexProbe::start(p.SYST));
         let store = Store::new(RegionFlash, [(0, SLOT), (SLOT, 2 * SLOT)]);
-        if let (Some(clock), Ok(store)) = (clock, store) {
-            let mut server = Server::new(Device::boot(store, clock));
+        if let (Some(probe), Ok(store)) = (probe, store) {
+            let mut server = Server::new(Device::boot(store, probe));
             let Ok(()) = server.serve(&mut uart);
         }
         SCB::sys_reset()

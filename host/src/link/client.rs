@@ -7,8 +7,8 @@ use deltaz_shared::projector::ProjectorRay;
 use deltaz_shared::protocol::frame::CRC;
 use deltaz_shared::protocol::{
     decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo, DeviceStats,
-    ErrorCode, PointResult, PointStatus, Request, RequestBody, ResponseBody, CHUNK_SIZE, MAX_BATCH,
-    MAX_FRAME, PROTOCOL_VERSION,
+    ErrorCode, PointResult, PointStatus, Request, RequestBody, ResponseBody, WireError, CHUNK_SIZE,
+    MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
 };
 use deltaz_shared::rig::{Method, Rig};
 use nalgebra::Vector3;
@@ -17,8 +17,10 @@ use std::time::{Duration, Instant};
 
 /// How long a request waits for its response by default.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(3);
-/// Upload attempts when the device reports a CRC failure.
+/// Upload attempts when the device reports a CRC failure of the whole blob.
 const UPLOAD_ATTEMPTS: usize = 3;
+/// Sends of one request the device could not read (damaged on the line).
+const SEND_ATTEMPTS: usize = 3;
 
 /// What can go wrong talking to a device.
 #[derive(Debug)]
@@ -139,11 +141,6 @@ impl<T: Transport> Device<T> {
     pub fn with_timeout(mut self, timeout: Duration) -> Self {
         self.timeout = timeout;
         self
-    }
-
-    /// The transport.
-    pub fn transport_mut(&mut self) -> &mut T {
-        &mut self.transport
     }
 
     /// Close the client, keeping the transport.
@@ -299,8 +296,9 @@ impl<T: Transport> Device<T> {
         }
     }
 
-    /// Send one request and wait for the response with its seq; frames that do not decode or
-    /// carry another seq (boot text, stale answers) are skipped.
+    /// Send one request and wait for the response with its seq. A request the device could not
+    /// read (a frame damaged on the line: COBS, length or CRC) was not executed, so it is sent
+    /// again, up to [`SEND_ATTEMPTS`] times.
     fn call(&mut self, body: RequestBody) -> Result<ResponseBody> {
         self.seq = self.seq.wrapping_add(1).max(1);
         let request = Request {
@@ -312,8 +310,24 @@ impl<T: Transport> Device<T> {
         let len = encode_frame(&request, &mut buf[1..])
             .map_err(|e| DeviceError::Device(ErrorCode::Frame(e)))?
             .len();
-        self.transport.send(&buf[..=len])?;
-        self.sent += len as u64 + 1;
+        let frame = &buf[..=len];
+        let mut attempt = 1;
+        loop {
+            match self.exchange(frame) {
+                Err(DeviceError::Device(ErrorCode::Frame(
+                    WireError::BadCrc | WireError::Cobs | WireError::TooShort,
+                ))) if attempt < SEND_ATTEMPTS => attempt += 1,
+                result => return result,
+            }
+        }
+    }
+
+    /// Send a frame and wait for the response with the current seq; frames that do not decode
+    /// or carry another seq (boot text, stale answers) are skipped.
+    fn exchange(&mut self, frame: &[u8]) -> Result<ResponseBody> {
+        self.pending.clear();
+        self.transport.send(frame)?;
+        self.sent += frame.len() as u64;
         let deadline = Instant::now() + self.timeout;
         loop {
             while let Some(end) = self.pending.iter().position(|&b| b == 0) {

@@ -1,7 +1,7 @@
 //! The firmware's logic in this process, behind the same framing as a real device.
 
 use super::Transport;
-use deltaz_firmware::device::{Device, NoClock, MAX_CALIBRATION};
+use deltaz_firmware::device::{Device, NoProbe, MAX_CALIBRATION};
 use deltaz_firmware::ram_flash::RamFlash;
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::{Store, HEADER};
@@ -16,7 +16,7 @@ pub type InProcessFlash = RamFlash<{ 2 * SLOT }>;
 /// The device logic in-process, its calibration in a RAM flash that survives [`Transport`]
 /// resets (a `Reset` request reboots the device from that flash, as a board would).
 pub struct InProcess {
-    server: Option<Box<Server<InProcessFlash, NoClock>>>,
+    server: Option<Box<Server<InProcessFlash, NoProbe>>>,
     outbox: Vec<u8>,
 }
 
@@ -41,10 +41,10 @@ impl InProcess {
     }
 }
 
-fn boot(flash: InProcessFlash) -> Box<Server<InProcessFlash, NoClock>> {
+fn boot(flash: InProcessFlash) -> Box<Server<InProcessFlash, NoProbe>> {
     let slots = [(0, SLOT as u32), (SLOT as u32, 2 * SLOT as u32)];
     let store = Store::new(flash, slots).unwrap_or_else(|_| unreachable!("a fixed valid layout"));
-    Box::new(Server::new(Device::boot(store, NoClock)))
+    Box::new(Server::new(Device::boot(store, NoProbe)))
 }
 
 impl InProcess {

@@ -48,11 +48,6 @@ impl Qemu {
             _device_end: device_end,
         })
     }
-
-    /// The QEMU process id.
-    pub fn pid(&self) -> u32 {
-        self.child.id()
-    }
 }
 
 impl Transport for Qemu {

@@ -187,6 +187,8 @@ pub struct DeviceStats {
     pub last_compute_ticks: u32,
     /// Centroids in the last `Compute`.
     pub last_compute_points: u16,
+    /// The most stack used since boot (bytes; 0 when the board does not measure it).
+    pub stack_peak: u32,
 }
 
 /// Why a request failed.

