@@ -16,9 +16,8 @@
 //! 45 µm pixels, 1.6-1.9 m, up to 600 mm off axis, planes tilted up to 45°) it stays below
 //! 0.02 pixel for 20 mm targets and, scaling with ρ², below 0.005 pixel for 10 mm targets
 //! (test `perspective_bias_at_paper_geometry`): below the centroid noise, so the calibration
-//! commands leave it uncorrected. Projected dots have no such bias to speak of: the projector's
-//! own perspective makes the dot's footprint an ellipse whose centre is the ray's hit point to the
-//! same order.
+//! commands leave it uncorrected. Projected dots are footprints of the projector's light cone
+//! and carry a shift of the same kind; it is not corrected either.
 
 pub mod detect;
 pub mod fit;
