@@ -2,4 +2,8 @@
 //! the device.
 #![deny(missing_docs)]
 
+pub mod bundle;
+pub mod io;
 pub mod measure;
+pub mod resection;
+pub mod simulate;

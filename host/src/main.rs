@@ -1,12 +1,85 @@
 //! `deltaz`: the command-line front end.
-use clap::Parser;
+use clap::{Parser, Subcommand};
+use deltaz_host::{io, resection, simulate};
+use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
 #[derive(Parser)]
 #[command(version, about)]
-struct Cli {}
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a scenario: camera_init.json, camera_obs.csv, camera_control.csv, plate_obs.csv,
+    /// plate_control.csv and truth.json in the output directory.
+    Simulate {
+        /// `paper` (built in) or a scenario TOML file.
+        #[arg(long)]
+        scenario: String,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Random seed (default: the scenario's).
+        #[arg(long)]
+        seed: Option<u64>,
+    },
+    /// Space resection: the exterior orientation of every image from known control.
+    Resect {
+        /// camera.json (or camera_init.json) with the inner orientation.
+        #[arg(long)]
+        camera: PathBuf,
+        /// Observations CSV (image,point,col,row[,kind]); dots are skipped.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Control CSV (point,X,Y,Z,sigma).
+        #[arg(long)]
+        control: PathBuf,
+        /// Also write the poses as JSON ("deltaz.poses/1").
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
 
 fn main() -> anyhow::Result<()> {
-    Cli::parse();
+    match Cli::parse().command {
+        Command::Simulate {
+            scenario,
+            out,
+            seed,
+        } => {
+            let scenario = simulate::load_scenario(&scenario)?;
+            let sim = simulate::simulate(&scenario, seed.unwrap_or(scenario.seed));
+            simulate::write_simulation(&out, &sim)?;
+            println!(
+                "{}: {} field observations in {} images, {} plate observations in {} images -> {}",
+                scenario.name,
+                sim.camera_obs.len(),
+                sim.truth.stations.len(),
+                sim.plate_obs.len(),
+                sim.truth.plate.images.len(),
+                out.display()
+            );
+        }
+        Command::Resect {
+            camera,
+            obs,
+            control,
+            out,
+        } => {
+            let cam = io::camera_file::read_camera(&camera)?;
+            let observations = io::observations::read_observations(&obs)?;
+            let control = io::control::read_control(&control)?;
+            let results =
+                resection::resect_images(&obs, &cam.grid(), &cam.inner(), &observations, &control)?;
+            let poses = resection::PosesFile::new(&results);
+            print!("{}", poses.table());
+            if let Some(out) = out {
+                io::atomic::write_json_atomic(&out, &poses)?;
+            }
+        }
+    }
     Ok(())
 }

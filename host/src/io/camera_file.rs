@@ -1,0 +1,393 @@
+//! The camera calibration file `camera.json` ("deltaz.camera/1") and its initial form
+//! `camera_init.json` (the pixel mapping and an approximate f; every other field optional).
+//!
+//! ```json
+//! { "format": "deltaz.camera/1",
+//!   "inner": {"f": 46.981, "cx": -0.133, "cy": 0.208, "k1": 6.3e-5, "k2": 0, "k3": 0, "p1": 0, "p2": 0},
+//!   "sigma": {"f": 0.066, ...},            // same keys, 0 = held fixed
+//!   "sigma0": 0.025,                       // a posteriori σ0 (mm)
+//!   "pixel_size": 0.045, "image_size": [768, 512], "origin": [378, 252],
+//!   "stations": [{"image": "s1", "kappa": .., "phi": .., "omega": .., "X0": .., "Y0": .., "Z0": ..,
+//!                 "sigma": {...}, "rms_px": .., "observations": ..}],
+//!   "correlations": [{"a": "f", "b": "s1.Z0", "r": 0.93}],
+//!   "rms_px": 0.5, "rejected": [{"image": "s3", "point": "T07", "col": .., "row": .., "residual_px": ..}] }
+//! ```
+
+use super::atomic::write_json_atomic;
+use super::{FileError, Result};
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
+use deltaz_shared::collinearity::ExteriorOrientation;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The format tag of `camera.json`.
+pub const CAMERA_FORMAT: &str = "deltaz.camera/1";
+
+/// The inner orientation parameters (mm), or their σ.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct InnerParams {
+    /// Focal length (mm).
+    pub f: f64,
+    /// Principal point x (mm).
+    pub cx: f64,
+    /// Principal point y (mm).
+    pub cy: f64,
+    /// Radial distortion k1 (mm⁻²).
+    pub k1: f64,
+    /// Radial distortion k2 (mm⁻⁴).
+    pub k2: f64,
+    /// Radial distortion k3 (mm⁻⁶).
+    pub k3: f64,
+    /// Decentring p1 (mm⁻¹).
+    pub p1: f64,
+    /// Decentring p2 (mm⁻¹).
+    pub p2: f64,
+}
+
+impl InnerParams {
+    /// The values in the order f, cx, cy, k1, k2, k3, p1, p2 (see [`INNER_NAMES`]).
+    pub fn to_array(&self) -> [f64; 8] {
+        [
+            self.f, self.cx, self.cy, self.k1, self.k2, self.k3, self.p1, self.p2,
+        ]
+    }
+
+    /// From values in the order of [`INNER_NAMES`].
+    pub fn from_array(a: [f64; 8]) -> Self {
+        let [f, cx, cy, k1, k2, k3, p1, p2] = a;
+        Self {
+            f,
+            cx,
+            cy,
+            k1,
+            k2,
+            k3,
+            p1,
+            p2,
+        }
+    }
+}
+
+/// The inner parameters' names, in the order of [`InnerParams::to_array`].
+pub const INNER_NAMES: [&str; 8] = ["f", "cx", "cy", "k1", "k2", "k3", "p1", "p2"];
+
+impl From<InnerParams> for InnerOrientation<f64> {
+    fn from(p: InnerParams) -> Self {
+        InnerOrientation {
+            f: p.f,
+            cx: p.cx,
+            cy: p.cy,
+            k1: p.k1,
+            k2: p.k2,
+            k3: p.k3,
+            p1: p.p1,
+            p2: p.p2,
+        }
+    }
+}
+
+impl From<InnerOrientation<f64>> for InnerParams {
+    fn from(p: InnerOrientation<f64>) -> Self {
+        Self {
+            f: p.f,
+            cx: p.cx,
+            cy: p.cy,
+            k1: p.k1,
+            k2: p.k2,
+            k3: p.k3,
+            p1: p.p1,
+            p2: p.p2,
+        }
+    }
+}
+
+/// An exterior orientation (eq. 3) in files: κ, φ, ω (rad), X0, Y0, Z0 (mm), or their σ.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[allow(non_snake_case)]
+pub struct PoseParams {
+    /// κ (rad).
+    pub kappa: f64,
+    /// φ (rad).
+    pub phi: f64,
+    /// ω (rad).
+    pub omega: f64,
+    /// X0 (mm).
+    pub X0: f64,
+    /// Y0 (mm).
+    pub Y0: f64,
+    /// Z0 (mm).
+    pub Z0: f64,
+}
+
+/// The pose parameters' names, in the order of [`PoseParams::to_array`].
+pub const POSE_NAMES: [&str; 6] = ["kappa", "phi", "omega", "X0", "Y0", "Z0"];
+
+impl PoseParams {
+    /// κ, φ, ω, X0, Y0, Z0.
+    pub fn to_array(&self) -> [f64; 6] {
+        [self.kappa, self.phi, self.omega, self.X0, self.Y0, self.Z0]
+    }
+
+    /// From κ, φ, ω, X0, Y0, Z0.
+    pub fn from_array(a: [f64; 6]) -> Self {
+        Self {
+            kappa: a[0],
+            phi: a[1],
+            omega: a[2],
+            X0: a[3],
+            Y0: a[4],
+            Z0: a[5],
+        }
+    }
+}
+
+impl From<PoseParams> for ExteriorOrientation<f64> {
+    fn from(p: PoseParams) -> Self {
+        ExteriorOrientation {
+            kappa: p.kappa,
+            phi: p.phi,
+            omega: p.omega,
+            centre: Vector3::new(p.X0, p.Y0, p.Z0),
+        }
+    }
+}
+
+impl From<ExteriorOrientation<f64>> for PoseParams {
+    fn from(e: ExteriorOrientation<f64>) -> Self {
+        Self {
+            kappa: e.kappa,
+            phi: e.phi,
+            omega: e.omega,
+            X0: e.centre.x,
+            Y0: e.centre.y,
+            Z0: e.centre.z,
+        }
+    }
+}
+
+/// One image's exterior orientation with its σ and residual figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Station {
+    /// The image label.
+    pub image: String,
+    /// The pose.
+    #[serde(flatten)]
+    pub pose: PoseParams,
+    /// σ of each pose parameter.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<PoseParams>,
+    /// A posteriori σ0 of this image's resection (mm), when resected alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma0: Option<f64>,
+    /// Residual RMS of this image (px).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rms_px: Option<f64>,
+    /// Number of observations used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observations: Option<usize>,
+}
+
+/// A pair of parameters whose estimates are highly correlated.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Correlation {
+    /// First parameter (e.g. "f" or "s3.Z0").
+    pub a: String,
+    /// Second parameter.
+    pub b: String,
+    /// The correlation coefficient.
+    pub r: f64,
+}
+
+/// An observation rejected as a gross error.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Rejected {
+    /// Image label.
+    pub image: String,
+    /// Point label.
+    pub point: String,
+    /// Observed column.
+    pub col: f64,
+    /// Observed row.
+    pub row: f64,
+    /// Its residual when rejected (px).
+    pub residual_px: f64,
+}
+
+/// `camera.json` / `camera_init.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraFile {
+    /// Always [`CAMERA_FORMAT`].
+    pub format: String,
+    /// Inner orientation (mm).
+    pub inner: InnerParams,
+    /// σ of the inner orientation (0 = held fixed).
+    #[serde(default)]
+    pub sigma: InnerParams,
+    /// A posteriori σ0 (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma0: Option<f64>,
+    /// Pixel size (mm).
+    pub pixel_size: f64,
+    /// Image size [width, height] (pixels).
+    pub image_size: [u32; 2],
+    /// Pixel [col, row] of the photo-coordinate origin.
+    pub origin: [f64; 2],
+    /// Exterior orientations.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub stations: Vec<Station>,
+    /// Correlations above 0.9 in magnitude.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub correlations: Vec<Correlation>,
+    /// Residual RMS over all images (px).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rms_px: Option<f64>,
+    /// Observations rejected as gross errors.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rejected: Vec<Rejected>,
+    /// Iterations of the adjustment.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iterations: Option<usize>,
+}
+
+impl CameraFile {
+    /// The initial form: the pixel mapping and an approximate inner orientation.
+    pub fn init(grid: &PixelGrid<f64>, inner: InnerOrientation<f64>) -> Self {
+        Self {
+            format: CAMERA_FORMAT.to_owned(),
+            inner: inner.into(),
+            sigma: InnerParams::default(),
+            sigma0: None,
+            pixel_size: grid.pixel_size,
+            image_size: [grid.width, grid.height],
+            origin: [grid.origin_col, grid.origin_row],
+            stations: Vec::new(),
+            correlations: Vec::new(),
+            rms_px: None,
+            rejected: Vec::new(),
+            iterations: None,
+        }
+    }
+
+    /// The pixel mapping.
+    pub fn grid(&self) -> PixelGrid<f64> {
+        PixelGrid {
+            pixel_size: self.pixel_size,
+            width: self.image_size[0],
+            height: self.image_size[1],
+            origin_col: self.origin[0],
+            origin_row: self.origin[1],
+        }
+    }
+
+    /// The inner orientation.
+    pub fn inner(&self) -> InnerOrientation<f64> {
+        self.inner.into()
+    }
+
+    fn validate(&self, path: &Path) -> Result<()> {
+        if self.format != CAMERA_FORMAT {
+            return Err(FileError::whole(
+                path,
+                format!("`format` is {:?}, expected {CAMERA_FORMAT:?}", self.format),
+            ));
+        }
+        let numbers = self
+            .inner
+            .to_array()
+            .into_iter()
+            .chain(self.sigma.to_array())
+            .chain([self.pixel_size, self.origin[0], self.origin[1]])
+            .chain(self.stations.iter().flat_map(|s| s.pose.to_array()));
+        if numbers.into_iter().any(|v| !v.is_finite()) {
+            return Err(FileError::whole(path, "a parameter is NaN or infinite"));
+        }
+        if self.inner.f <= 0.0 {
+            return Err(FileError::whole(path, "`inner.f` must be positive"));
+        }
+        if self.pixel_size <= 0.0 || self.image_size.contains(&0) {
+            return Err(FileError::whole(
+                path,
+                "`pixel_size` and `image_size` must be positive",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Reads and validates `camera.json` or `camera_init.json`.
+pub fn read_camera(path: &Path) -> Result<CameraFile> {
+    let text = std::fs::read_to_string(path).map_err(|e| FileError::whole(path, e.to_string()))?;
+    let file: CameraFile =
+        serde_json::from_str(&text).map_err(|e| FileError::at(path, e.line(), e.to_string()))?;
+    file.validate(path)?;
+    Ok(file)
+}
+
+/// Writes `camera.json` atomically.
+pub fn write_camera(path: &Path, file: &CameraFile) -> Result<()> {
+    write_json_atomic(path, file)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn init_form_round_trip_and_conversions() {
+        let grid = PixelGrid {
+            pixel_size: 0.045,
+            width: 768,
+            height: 512,
+            origin_col: 378.0,
+            origin_row: 252.0,
+        };
+        let mut file = CameraFile::init(&grid, InnerOrientation::ideal(46.0));
+        file.stations.push(Station {
+            image: "s1".into(),
+            pose: PoseParams::from_array([0.1, 0.2, 0.3, 1.0, 2.0, 3.0]),
+            sigma: None,
+            sigma0: None,
+            rms_px: Some(0.5),
+            observations: Some(48),
+        });
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("camera.json");
+        write_camera(&path, &file).unwrap();
+        let back = read_camera(&path).unwrap();
+        assert_eq!(back, file);
+        assert_eq!(back.grid(), grid);
+        assert_eq!(back.inner().f, 46.0);
+        let eo: ExteriorOrientation<f64> = back.stations[0].pose.into();
+        assert_eq!(eo.centre, Vector3::new(1.0, 2.0, 3.0));
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("\"X0\": 1.0") && text.contains("\"kappa\": 0.1"));
+    }
+
+    #[test]
+    fn minimal_init_file_and_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("camera_init.json");
+        let ok = r#"{"format":"deltaz.camera/1","inner":{"f":46},"pixel_size":0.045,
+                     "image_size":[768,512],"origin":[378,252]}"#;
+        std::fs::write(&path, ok).unwrap();
+        assert_eq!(read_camera(&path).unwrap().inner().k1, 0.0);
+        let bad = [
+            (ok.replace("deltaz.camera/1", "x/2"), "`format` is \"x/2\""),
+            (
+                ok.replace("\"f\":46", "\"f\":-1"),
+                "`inner.f` must be positive",
+            ),
+            (
+                ok.replace(",\"pixel_size\":0.045", ""),
+                "missing field `pixel_size`",
+            ),
+        ];
+        for (text, expect) in bad {
+            std::fs::write(&path, text).unwrap();
+            let e = read_camera(&path).unwrap_err().to_string();
+            assert!(e.contains("camera_init.json") && e.contains(expect), "{e}");
+        }
+    }
+}

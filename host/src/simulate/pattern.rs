@@ -1,0 +1,215 @@
+//! The projector's dot pattern: a grid of rays on the projector's slide, with the paper's nine
+//! calibrated rays (Table 4) among them.
+//!
+//! A node (row, col) of the grid sits at slide coordinates s = origin + col·col_step + row·row_step
+//! (tangents of the angles in the projector frame); its ray leaves the projector along
+//! R_proj · normalise(s_x, s_y, −1) in the camera system. Ray ids are row·100 + col.
+//!
+//! The paper pattern is 20 rows × 22 columns. Table 4's rays "01".."23" carry the ids 1, 2, 3,
+//! 101, …, 203 (label "ij" → id i·100 + j). They are spaced about seven dots apart on the real
+//! slide (they span the image), so they are placed at the grid nodes (3 + 7i, 3 + 7(j − 1)) with
+//! their exact Table 4 directions, and the ids of those nodes and of the nodes (i, j) are swapped:
+//! every id is still some row·100 + col, and the grid stays uniform.
+
+use nalgebra::{Matrix3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Table 4: direction cosines (l, m, n) of the nine calibrated rays in the paper's global frame,
+/// by label "ij" (row i, column j).
+pub const TABLE4: [(u16, [f64; 3]); 9] = [
+    (1, [0.09159, -0.17179, -0.98087]),
+    (2, [0.24040, -0.16860, -0.95592]),
+    (3, [0.38490, -0.16341, -0.90838]),
+    (101, [0.09012, -0.02403, -0.99564]),
+    (102, [0.23928, -0.01954, -0.97075]),
+    (103, [0.38453, -0.01461, -0.92300]),
+    (201, [0.08562, 0.12279, -0.98873]),
+    (202, [0.23365, 0.12957, -0.96365]),
+    (203, [0.37689, 0.13301, -0.91666]),
+];
+
+/// Grid pitch of the paper's slide relative to Table 4's spacing.
+const PAPER_SUBDIVISION: f64 = 7.0;
+/// The grid row and column of Table 4's ray "01".
+const PAPER_TABLE4_ORIGIN: (u16, u16) = (3, 3);
+
+/// A dot pattern as a grid on the slide (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PatternSpec {
+    /// Rows of dots.
+    pub rows: u16,
+    /// Columns of dots (at most 100).
+    pub cols: u16,
+    /// Slide coordinates of node (0, 0).
+    pub origin: [f64; 2],
+    /// Slide step from one column to the next.
+    pub col_step: [f64; 2],
+    /// Slide step from one row to the next.
+    pub row_step: [f64; 2],
+    /// Whether the ids 1..203 are Table 4's rays at their exact directions (the paper pattern).
+    #[serde(default)]
+    pub table4: bool,
+    /// Radial distortion of the slide: s ↦ s (1 + k ρ²), ρ measured from the grid's centre.
+    #[serde(default)]
+    pub distortion: f64,
+    /// Non-central rays: each ray passes through centre + offset, offset = this (mm per unit of
+    /// slide coordinate) × (s − centre, 0) in the projector frame.
+    #[serde(default)]
+    pub noncentral_mm: f64,
+}
+
+/// One ray of the pattern, in the camera system.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PatternRay {
+    /// Ray id.
+    pub id: u16,
+    /// Grid row of the node.
+    pub row: u16,
+    /// Grid column of the node.
+    pub col: u16,
+    /// Unit direction in the camera system.
+    pub direction: Vector3<f64>,
+    /// The ray passes through the projector centre + this offset (camera system, mm).
+    pub offset: Vector3<f64>,
+}
+
+impl PatternSpec {
+    /// The paper's 20 × 22 pattern, its grid fitted to Table 4's slide coordinates
+    /// (ids 1..203 = Table 4, see the module docs).
+    pub fn paper() -> Self {
+        // Least-squares affine fit s = a + col·b + row·c over Table 4's nine rays.
+        let mut n = Matrix3::<f64>::zeros();
+        let mut rhs = [Vector3::<f64>::zeros(); 2];
+        for (id, d) in TABLE4 {
+            let s = slide_of(&Vector3::from(d));
+            let basis = Vector3::new(1.0, f64::from(id % 100), f64::from(id / 100));
+            n += basis * basis.transpose();
+            rhs[0] += basis * s.x;
+            rhs[1] += basis * s.y;
+        }
+        let inv = n.try_inverse().expect("Table 4 spans a grid");
+        let (fu, fv) = (inv * rhs[0], inv * rhs[1]);
+        let (r0, c0) = PAPER_TABLE4_ORIGIN;
+        let k = PAPER_SUBDIVISION;
+        let col_step = [fu.y / k, fv.y / k];
+        let row_step = [fu.z / k, fv.z / k];
+        // Table 4's "01" (row 0, col 1) sits at node (r0, c0).
+        let at01 = [fu.x + fu.y, fv.x + fv.y];
+        let origin = [
+            at01[0] - f64::from(c0) * col_step[0] - f64::from(r0) * row_step[0],
+            at01[1] - f64::from(c0) * col_step[1] - f64::from(r0) * row_step[1],
+        ];
+        Self {
+            rows: 20,
+            cols: 22,
+            origin,
+            col_step,
+            row_step,
+            table4: true,
+            distortion: 0.0,
+            noncentral_mm: 0.0,
+        }
+    }
+
+    fn node(&self, row: u16, col: u16) -> Vector2<f64> {
+        let (r, c) = (f64::from(row), f64::from(col));
+        Vector2::new(
+            self.origin[0] + c * self.col_step[0] + r * self.row_step[0],
+            self.origin[1] + c * self.col_step[1] + r * self.row_step[1],
+        )
+    }
+
+    /// The id of grid node (row, col): row·100 + col, with the Table 4 swap of the paper
+    /// pattern.
+    pub fn id(&self, row: u16, col: u16) -> u16 {
+        if self.table4 {
+            let (r0, c0) = PAPER_TABLE4_ORIGIN;
+            let step = PAPER_SUBDIVISION as u16;
+            let on_table = |r: u16, c: u16| {
+                r >= r0
+                    && c >= c0
+                    && (r - r0).is_multiple_of(step)
+                    && (c - c0).is_multiple_of(step)
+                    && (r - r0) / step < 3
+                    && (c - c0) / step < 3
+            };
+            if on_table(row, col) {
+                return ((row - r0) / step) * 100 + (col - c0) / step + 1;
+            }
+            if row < 3 && (1..=3).contains(&col) {
+                return (r0 + step * row) * 100 + c0 + step * (col - 1);
+            }
+        }
+        row * 100 + col
+    }
+
+    /// Every ray in the camera system, sorted by id. `r_cam_proj` turns projector-frame vectors
+    /// into camera-system vectors.
+    pub fn rays(&self, r_cam_proj: &Matrix3<f64>) -> Vec<PatternRay> {
+        let centre = (self.node(0, 0) + self.node(self.rows - 1, self.cols - 1)) / 2.0;
+        let mut rays = Vec::with_capacity(usize::from(self.rows) * usize::from(self.cols));
+        for row in 0..self.rows {
+            for col in 0..self.cols {
+                let id = self.id(row, col);
+                let table = TABLE4
+                    .iter()
+                    .find(|(t, _)| self.table4 && *t == id)
+                    .map(|(_, d)| slide_of(&Vector3::from(*d)));
+                let s = table.unwrap_or_else(|| self.node(row, col));
+                let rho = s - centre;
+                let s = s + rho * (self.distortion * rho.norm_squared());
+                let direction = r_cam_proj * Vector3::new(s.x, s.y, -1.0).normalize();
+                let offset = r_cam_proj * Vector3::new(rho.x, rho.y, 0.0) * self.noncentral_mm;
+                rays.push(PatternRay {
+                    id,
+                    row,
+                    col,
+                    direction,
+                    offset,
+                });
+            }
+        }
+        rays.sort_by_key(|r| r.id);
+        rays
+    }
+}
+
+/// Slide coordinates (tangents) of a direction pointing along −z: (l/−n, m/−n).
+fn slide_of(d: &Vector3<f64>) -> Vector2<f64> {
+    Vector2::new(d.x / -d.z, d.y / -d.z)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_pattern_ids_and_table4_directions() {
+        let p = PatternSpec::paper();
+        let rays = p.rays(&Matrix3::identity());
+        assert_eq!(rays.len(), 440);
+        // ids unique and all of the form row*100 + col within the grid
+        let mut ids: Vec<u16> = rays.iter().map(|r| r.id).collect();
+        ids.dedup();
+        assert_eq!(ids.len(), 440);
+        assert!(ids.iter().all(|id| id / 100 < 20 && id % 100 < 22));
+        for (id, d) in TABLE4 {
+            let ray = rays.iter().find(|r| r.id == id).unwrap();
+            let expect = Vector3::from(d).normalize();
+            assert!((ray.direction - expect).norm() < 1e-12, "ray {id}");
+        }
+        // The grid is uniform around the Table 4 rays: each lies within 0.4 pitch of its node
+        // (Table 4 is not exactly affine), so neighbouring dots stay well apart.
+        let pitch = Vector2::from(p.col_step).norm();
+        for ray in rays.iter().filter(|r| r.id < 300 && r.id % 100 < 4) {
+            let node = p.node(ray.row, ray.col);
+            let miss = (slide_of(&ray.direction) - node).norm();
+            assert!(
+                miss < 0.4 * pitch,
+                "ray {} misses its node by {miss}",
+                ray.id
+            );
+        }
+    }
+}

@@ -1,0 +1,190 @@
+//! Scenario files (TOML): the camera, the target field and its stations, the rig, the plate and
+//! its images, the noise. [`Scenario::paper`] is the paper's set-up.
+
+use super::pattern::PatternSpec;
+use crate::io::camera_file::{InnerParams, PoseParams};
+use serde::{Deserialize, Serialize};
+
+/// A complete simulation set-up.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// A name for reports.
+    pub name: String,
+    /// Default random seed (the command line may override it).
+    #[serde(default)]
+    pub seed: u64,
+    /// The camera.
+    pub camera: CameraSpec,
+    /// The target field for camera calibration.
+    pub field: FieldSpec,
+    /// The stations (convergent images) of the target field.
+    pub stations: StationsSpec,
+    /// The projector, rigid with the camera.
+    pub rig: RigSpec,
+    /// The calibration plate and its images.
+    pub plate: PlateSpec,
+    /// Measurement noise.
+    pub noise: NoiseSpec,
+}
+
+/// The camera: raster and true inner orientation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// Pixel size (mm).
+    pub pixel_size: f64,
+    /// [width, height] in pixels.
+    pub image_size: [u32; 2],
+    /// Pixel [col, row] of the photo-coordinate origin.
+    pub origin: [f64; 2],
+    /// The true inner orientation (keys f, cx, cy, k1, k2, k3, p1, p2; missing = 0).
+    pub inner: InnerParams,
+    /// The approximate focal length written to camera_init.json (mm).
+    pub init_f: f64,
+}
+
+/// A target field: a grid of targets with relief.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FieldSpec {
+    /// Extent [X, Y] (mm), centred on the origin.
+    pub size: [f64; 2],
+    /// Targets [per row, rows].
+    pub grid: [u32; 2],
+    /// Height range of the targets (mm): Z runs over 0..relief in a fixed pseudo-random pattern.
+    pub relief: f64,
+    /// σ of the control coordinates written to camera_control.csv (mm, per coordinate).
+    pub control_sigma: f64,
+}
+
+/// Convergent stations on a cone around the field's centre.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StationsSpec {
+    /// Number of images; the first looks straight down, the others sit around a cone.
+    pub count: u32,
+    /// Distance from the field's centre (mm).
+    pub distance: f64,
+    /// Angle of the cone's stations off the vertical (rad).
+    pub convergence: f64,
+    /// Roll (κ about the viewing axis) of successive stations, cycled (rad).
+    pub rolls: Vec<f64>,
+}
+
+/// The projector relative to the camera.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigSpec {
+    /// Projector centre in the camera system (mm).
+    pub projector_centre: [f64; 3],
+    /// Projector orientation [κ, φ, ω] (rad): camera-system ray = R(κ, φ, ω) · projector-frame ray,
+    /// R of eq. (2). The paper's Table 4 rays are in the 1st plate image's frame, so there this is
+    /// the 1st plate image's rotation.
+    pub projector_angles: [f64; 3],
+    /// The dot pattern.
+    pub pattern: PatternSpec,
+}
+
+/// The calibration plate: control points in the plate frame (plate surface Z = 0) and the
+/// camera's pose in the plate frame for each plate image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateSpec {
+    /// Control points [X, Y, Z] (mm); raised points have Z > 0.
+    pub control: Vec<[f64; 3]>,
+    /// σ of the plate control coordinates written to plate_control.csv (mm).
+    pub control_sigma: f64,
+    /// The plate's extent catching dots [Xmin, Xmax, Ymin, Ymax] (mm).
+    pub extent: [f64; 4],
+    /// The camera's pose in the plate frame, one per plate image (Table 2 for the paper).
+    pub images: Vec<PoseParams>,
+}
+
+/// Image noise and gross errors.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoiseSpec {
+    /// σ of image coordinates (pixels, per coordinate).
+    pub image_sigma_px: f64,
+    /// Fraction of target-field observations turned into gross errors.
+    #[serde(default)]
+    pub outlier_rate: f64,
+    /// Displacement range of gross errors [min, max] (pixels).
+    #[serde(default = "default_outlier_px")]
+    pub outlier_px: [f64; 2],
+}
+
+fn default_outlier_px() -> [f64; 2] {
+    [5.0, 20.0]
+}
+
+impl Scenario {
+    /// The paper's rig: Table 1's camera (Kodak DC40 in "equivalent" 0.045 mm pixels), a
+    /// 48-target field seen from 9 convergent stations, Table 2's three plate poses, Table 3's
+    /// projector centre, Table 4's rays in a 20 × 22 pattern, 0.5 px noise.
+    pub fn paper() -> Self {
+        let table2 = [
+            [0.013301, 0.01418, -0.02600, 375.121, 364.541, 1842.675],
+            [0.01321, 0.00983, -0.02641, 369.765, 365.590, 1741.494],
+            [0.01274, 0.01590, -0.02787, 382.264, 368.888, 1639.377],
+        ];
+        let mut control = Vec::new();
+        for y in [-40.0, 240.0, 480.0, 770.0] {
+            for x in [0.0, 190.0, 375.0, 560.0, 750.0] {
+                let raised = (240.0..=480.0).contains(&y) && (190.0..=560.0).contains(&x);
+                control.push([x, y, if raised { 200.0 } else { 0.0 }]);
+            }
+        }
+        Scenario {
+            name: "paper".into(),
+            seed: 1,
+            camera: CameraSpec {
+                pixel_size: 0.045,
+                image_size: [768, 512],
+                origin: [378.0, 252.0],
+                inner: InnerParams {
+                    f: 46.981,
+                    cx: -0.133,
+                    cy: 0.208,
+                    k1: 0.000063,
+                    ..InnerParams::default()
+                },
+                init_f: 46.0,
+            },
+            field: FieldSpec {
+                size: [1000.0, 700.0],
+                grid: [8, 6],
+                relief: 400.0,
+                control_sigma: 0.1,
+            },
+            stations: StationsSpec {
+                count: 9,
+                distance: 2300.0,
+                convergence: 0.45,
+                rolls: vec![0.0, std::f64::consts::FRAC_PI_2],
+            },
+            rig: RigSpec {
+                projector_centre: [-490.304, 23.837, 56.825],
+                projector_angles: [table2[0][0], table2[0][1], table2[0][2]],
+                pattern: PatternSpec::paper(),
+            },
+            plate: PlateSpec {
+                control,
+                control_sigma: 0.1,
+                extent: [-400.0, 1150.0, -200.0, 950.0],
+                images: table2.iter().map(|p| PoseParams::from_array(*p)).collect(),
+            },
+            noise: NoiseSpec {
+                image_sigma_px: 0.5,
+                outlier_rate: 0.0,
+                outlier_px: default_outlier_px(),
+            },
+        }
+    }
+
+    /// A scenario from TOML text.
+    pub fn from_toml(text: &str) -> Result<Self, toml::de::Error> {
+        toml::from_str(text)
+    }
+}
