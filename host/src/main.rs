@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{io, resection, simulate};
+use deltaz_host::{io, measure, resection, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -41,6 +41,22 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Measure targets and dots in images (PNG, TIFF, JPEG): sub-pixel centres into an
+    /// observations CSV (image = file stem, point = m1, m2, ... in row-major order).
+    Measure {
+        /// Image files.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+        /// Observations CSV to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Targets are darker than the background.
+        #[arg(long)]
+        dark: bool,
+        /// Use the paper's gravity centre instead of the (more precise) template fit.
+        #[arg(long)]
+        gravity: bool,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -79,6 +95,28 @@ fn main() -> anyhow::Result<()> {
             if let Some(out) = out {
                 io::atomic::write_json_atomic(&out, &poses)?;
             }
+        }
+        Command::Measure {
+            images,
+            out,
+            dark,
+            gravity,
+        } => {
+            let mut params = measure::MeasureParams::default();
+            if dark {
+                params.detect.polarity = measure::detect::Polarity::Dark;
+            }
+            if gravity {
+                params.method = measure::CentreMethod::Gravity;
+            }
+            let observations = measure::measure_images(&images, &params)?;
+            io::observations::write_observations(&out, &observations)?;
+            println!(
+                "{} targets in {} images -> {}",
+                observations.len(),
+                images.len(),
+                out.display()
+            );
         }
     }
     Ok(())

@@ -169,6 +169,7 @@ fn torso_frames_identified() {
             width: scene.width,
             height: scene.height,
             pixels: img.as_raw().as_slice(),
+            dn: 1.0,
         };
         let measured = measure(&view, &MeasureParams::default());
         let dots: Vec<(f64, f64)> = measured.targets.iter().map(|t| (t.col, t.row)).collect();

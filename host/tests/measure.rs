@@ -73,6 +73,7 @@ fn measure_u8(img: &Rendered, method: CentreMethod) -> Measurement {
         width: img.width,
         height: img.height,
         pixels: u8img.as_raw().as_slice(),
+        dn: 1.0,
     };
     measure(
         &view,
@@ -142,4 +143,105 @@ fn shape_tests_reject_clutter() {
     assert_eq!(kept.len(), 2, "kept {kept:?}, rejected {:?}", m.rejected);
     assert!((kept[0].0 - 30.3).abs() < 0.05 && (kept[1].0 - 120.0).abs() < 0.05);
     assert!(m.rejected.len() >= 3, "{:?}", m.rejected);
+}
+
+/// Through files: 16-bit PNG, 8-bit TIFF and JPEG read back and measured; clear errors for an
+/// empty file, a truncated and a corrupt PNG, a text file and an image without targets.
+#[test]
+fn image_files_and_errors() {
+    use deltaz_host::measure::render::BitDepth;
+    use deltaz_host::measure::{measure_file, measure_images};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dot_field(5.0, 9);
+    let img = scene.render();
+    let png16 = dir.path().join("field16.png");
+    img.save_png(&png16, BitDepth::Sixteen).unwrap();
+    let template = rms_error(
+        &scene,
+        &measure_file(&png16, &MeasureParams::default()).unwrap(),
+    );
+    assert!(template <= 0.02, "16-bit PNG: {template}");
+    let tiff = dir.path().join("field.tif");
+    img.to_u8().save(&tiff).unwrap();
+    let jpeg = dir.path().join("field.jpg");
+    img.to_u8().save(&jpeg).unwrap();
+    for path in [&tiff, &jpeg] {
+        let m = measure_file(path, &MeasureParams::default()).unwrap();
+        let reasons: Vec<String> = m
+            .rejected
+            .iter()
+            .take(5)
+            .map(|r| format!("{:?} {}", r.0, r.1))
+            .collect();
+        assert_eq!(
+            m.targets.len(),
+            scene.spots.len(),
+            "{} σ {} {reasons:?}",
+            path.display(),
+            m.noise_sigma
+        );
+    }
+    let obs = measure_images(&[png16.clone(), tiff.clone()], &MeasureParams::default()).unwrap();
+    assert_eq!(obs.len(), 2 * scene.spots.len());
+    assert_eq!(
+        (obs[0].image.as_str(), obs[0].point.as_str()),
+        ("field16", "m1")
+    );
+
+    let bytes = std::fs::read(&png16).unwrap();
+    let cases: [(&str, Vec<u8>, &str); 4] = [
+        ("empty.png", vec![], "the file is empty"),
+        (
+            "truncated.png",
+            bytes[..bytes.len() / 2].to_vec(),
+            "corrupt or truncated",
+        ),
+        (
+            "corrupt.png",
+            {
+                let mut b = bytes.clone();
+                for v in b.iter_mut().skip(100).take(400) {
+                    *v ^= 0x5a;
+                }
+                b
+            },
+            "corrupt or truncated",
+        ),
+        (
+            "notes.png",
+            b"image,point,col,row\n".to_vec(),
+            "not a PNG, TIFF or JPEG",
+        ),
+    ];
+    for (name, content, expect) in cases {
+        let path = dir.path().join(name);
+        std::fs::write(&path, content).unwrap();
+        let err = format!(
+            "{:#}",
+            measure_file(&path, &MeasureParams::default()).unwrap_err()
+        );
+        assert!(err.contains(name) && err.contains(expect), "{name}: {err}");
+    }
+    let flat = dir.path().join("flat.png");
+    Scene {
+        spots: vec![],
+        ..scene.clone()
+    }
+    .render()
+    .save_png(&flat, BitDepth::Eight)
+    .unwrap();
+    let err = format!(
+        "{:#}",
+        measure_file(&flat, &MeasureParams::default()).unwrap_err()
+    );
+    assert!(
+        err.contains("flat.png") && err.contains("no targets found"),
+        "{err}"
+    );
+    let missing = dir.path().join("missing.png");
+    let err = format!(
+        "{:#}",
+        measure_file(&missing, &MeasureParams::default()).unwrap_err()
+    );
+    assert!(err.contains("missing.png"), "{err}");
 }

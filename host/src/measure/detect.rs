@@ -16,6 +16,9 @@ pub struct GrayView<'a, P> {
     pub height: usize,
     /// Row-major samples, `width * height` of them.
     pub pixels: &'a [P],
+    /// One DN of the 8-bit scale in sample units (1 for 8-bit, 257 for 16-bit samples): the
+    /// unit of contrasts and reported noise.
+    pub dn: f64,
 }
 
 /// Whether targets are brighter or darker than their surroundings.
@@ -49,6 +52,9 @@ pub struct DetectParams {
     pub tile: usize,
     /// Threshold above the local background, in units of the image noise σ.
     pub k_sigma: f64,
+    /// ... but at least this contrast (DN of the 8-bit scale): compressed images (JPEG) can
+    /// show almost no noise and blocking artefacts instead.
+    pub min_contrast: f64,
     /// Smallest accepted component (pixels).
     pub min_area: usize,
     /// Largest accepted component (pixels).
@@ -66,6 +72,7 @@ impl Default for DetectParams {
             polarity: Polarity::Bright,
             tile: 32,
             k_sigma: 5.0,
+            min_contrast: 8.0,
             min_area: 12,
             max_area: 5000,
             fill: (0.93, 1.08),
@@ -431,6 +438,7 @@ mod tests {
             width: 8,
             height: 6,
             pixels: &px,
+            dn: 1.0,
         };
         let bg = BackgroundField::estimate(&img, Polarity::Bright, 8);
         assert_eq!(bg.at(3.0, 3.0), 0.0);
@@ -447,6 +455,7 @@ mod tests {
             width: 8,
             height: 6,
             pixels: &dark[..],
+            dn: 1.0,
         };
         let bg = BackgroundField::estimate(&img, Polarity::Dark, 8);
         assert_eq!(components(&img, Polarity::Dark, &bg, 1.0).len(), 3);
@@ -476,6 +485,7 @@ mod tests {
             width: 300,
             height: 200,
             pixels: &img.pixels[..],
+            dn: 1.0,
         };
         let s = noise_sigma(&view);
         assert!((s - 3.0).abs() < 0.1, "{s}");

@@ -51,6 +51,9 @@ pub struct MeasureParams {
     pub margin: usize,
     /// Largest accepted template residual RMS, in units of the image noise σ.
     pub max_rms_sigma: f64,
+    /// ... plus this fraction of the target's amplitude (the template's mismatch and
+    /// compression artefacts grow with the contrast).
+    pub max_rms_fraction: f64,
 }
 
 impl Default for MeasureParams {
@@ -60,6 +63,7 @@ impl Default for MeasureParams {
             method: CentreMethod::Template,
             margin: 3,
             max_rms_sigma: 3.0,
+            max_rms_fraction: 0.03,
         }
     }
 }
@@ -92,9 +96,10 @@ pub struct Measurement {
 pub fn measure<P: Copy + Into<f64>>(img: &GrayView<P>, params: &MeasureParams) -> Measurement {
     let d = &params.detect;
     let background = BackgroundField::estimate(img, d.polarity, d.tile);
-    // Quantisation alone gives σ ≥ 1/√12 DN: never threshold below that.
-    let sigma = noise_sigma(img).max(0.29);
-    let blobs = components(img, d.polarity, &background, d.k_sigma * sigma);
+    // Quantisation alone gives σ ≥ 1/√12 DN.
+    let sigma = noise_sigma(img).max(0.29 * img.dn);
+    let threshold = (d.k_sigma * sigma).max(d.min_contrast * img.dn);
+    let blobs = components(img, d.polarity, &background, threshold);
     let grown: Vec<[usize; 4]> = blobs
         .iter()
         .map(|b| {
@@ -144,7 +149,11 @@ pub fn measure<P: Copy + Into<f64>>(img: &GrayView<P>, params: &MeasureParams) -
                     .collect();
                 let fitted =
                     fit::fit_template(img, d.polarity, blob, background.at(gc, gr), m, &exclude)
-                        .filter(|f| f.rms <= params.max_rms_sigma * sigma);
+                        .filter(|f| {
+                            let allowed = params.max_rms_sigma * sigma.max(img.dn)
+                                + params.max_rms_fraction * f.amplitude;
+                            f.rms <= allowed
+                        });
                 match fitted {
                     Some(f) => targets.push(Target {
                         col: f.col,
@@ -160,7 +169,7 @@ pub fn measure<P: Copy + Into<f64>>(img: &GrayView<P>, params: &MeasureParams) -
     Measurement {
         targets,
         rejected,
-        noise_sigma: sigma,
+        noise_sigma: sigma / img.dn,
     }
 }
 
@@ -182,13 +191,25 @@ pub fn load_image(path: &Path) -> Result<LoadedImage> {
     if bytes == 0 {
         bail!("{}: the file is empty", path.display());
     }
-    let reader = image::ImageReader::open(path)
-        .with_context(|| format!("{}: cannot open", path.display()))?
-        .with_guessed_format()
-        .with_context(|| format!("{}: cannot read", path.display()))?;
-    if reader.format().is_none() {
-        bail!("{}: not a PNG, TIFF or JPEG image", path.display());
-    }
+    let mut head = [0u8; 32];
+    let n = std::io::Read::read(
+        &mut std::fs::File::open(path)
+            .with_context(|| format!("{}: cannot open", path.display()))?,
+        &mut head,
+    )
+    .with_context(|| format!("{}: cannot read", path.display()))?;
+    let format = image::guess_format(&head[..n])
+        .ok()
+        .filter(|f| {
+            matches!(
+                f,
+                image::ImageFormat::Png | image::ImageFormat::Tiff | image::ImageFormat::Jpeg
+            )
+        })
+        .with_context(|| format!("{}: not a PNG, TIFF or JPEG image", path.display()))?;
+    let mut reader = image::ImageReader::open(path)
+        .with_context(|| format!("{}: cannot open", path.display()))?;
+    reader.set_format(format);
     let decoded = reader
         .decode()
         .map_err(|e| anyhow::anyhow!("{}: corrupt or truncated image: {e}", path.display()))?;
@@ -205,15 +226,8 @@ pub fn load_image(path: &Path) -> Result<LoadedImage> {
 /// Read and measure one image file; an image without any accepted target is an error.
 pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> {
     let measured = match load_image(path)? {
-        LoadedImage::Eight(b) => measure(&view(&b), params),
-        LoadedImage::Sixteen(b) => {
-            // Work in 8-bit DN units so thresholds and σ read the same for both depths.
-            let m = measure(&view(&b), params);
-            Measurement {
-                noise_sigma: m.noise_sigma / 257.0,
-                ..m
-            }
-        }
+        LoadedImage::Eight(b) => measure(&view(&b, 1.0), params),
+        LoadedImage::Sixteen(b) => measure(&view(&b, 257.0), params),
     };
     if measured.targets.is_empty() {
         bail!(
@@ -225,11 +239,47 @@ pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> 
     Ok(measured)
 }
 
-fn view<P: image::Primitive>(b: &image::ImageBuffer<image::Luma<P>, Vec<P>>) -> GrayView<'_, P> {
+/// Measure image files into observations: image label = file stem, point label = `m` + the
+/// target's number in the image (1-based, in row-major order of the targets' boxes). Stops at the
+/// first image that cannot be read or has no targets.
+pub fn measure_images(
+    paths: &[std::path::PathBuf],
+    params: &MeasureParams,
+) -> Result<Vec<crate::io::observations::Observation>> {
+    use crate::io::observations::Observation;
+    let mut out = Vec::new();
+    let mut labels = std::collections::HashSet::new();
+    for path in paths {
+        let label = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .with_context(|| format!("{}: no usable file name", path.display()))?
+            .to_owned();
+        if !labels.insert(label.clone()) {
+            bail!("{}: a second image labelled {label}", path.display());
+        }
+        let measured = measure_file(path, params)?;
+        for (k, t) in measured.targets.iter().enumerate() {
+            out.push(Observation::target(
+                &label,
+                &format!("m{}", k + 1),
+                t.col,
+                t.row,
+            ));
+        }
+    }
+    Ok(out)
+}
+
+fn view<P: image::Primitive>(
+    b: &image::ImageBuffer<image::Luma<P>, Vec<P>>,
+    dn: f64,
+) -> GrayView<'_, P> {
     GrayView {
         width: b.width() as usize,
         height: b.height() as usize,
         pixels: b.as_raw(),
+        dn,
     }
 }
 
