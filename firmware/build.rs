@@ -1,8 +1,9 @@
 //! Writes the linker memory map for the bare-metal target only (the host build is a plain library).
 use std::{env, fs, path::PathBuf};
 
-/// mps2-an386 (QEMU): 4 MiB of code memory at 0, 4 MiB of RAM at 0x2000_0000.
-const MEMORY_X: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x00000000, LENGTH = 4M\n  RAM : ORIGIN = 0x20000000, LENGTH = 4M\n}\n";
+/// mps2-an386 (QEMU): 4 MiB of code memory at 0, 4 MiB of RAM at 0x2000_0000. The top 64 KiB
+/// of the code memory (0x003F_0000) is left out: it holds the calibration store.
+const MEMORY_X: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x00000000, LENGTH = 4032K\n  RAM : ORIGIN = 0x20000000, LENGTH = 4M\n}\n";
 
 fn main() {
     if env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {

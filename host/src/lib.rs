@@ -2,8 +2,17 @@
 //! the device.
 #![deny(missing_docs)]
 
+pub mod accuracy;
 pub mod bundle;
+pub mod cli;
+pub mod compare;
 pub mod io;
+pub mod link;
 pub mod measure;
+pub mod ply;
+pub mod projector_calibration;
+pub mod reconstruct;
 pub mod resection;
 pub mod simulate;
+pub mod svg;
+pub mod system;

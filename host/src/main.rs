@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{io, measure, resection, simulate};
+use deltaz_host::{bundle, cli, io, measure, resection, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -25,6 +25,44 @@ enum Command {
         /// Random seed (default: the scenario's).
         #[arg(long)]
         seed: Option<u64>,
+    },
+    /// Accuracy assessment (Tables 6-7): 7-parameter similarity, residuals, n−1 std, absolute
+    /// errors with no fit, flatness. Point files are CSV `point,X,Y,Z`, matched by `point`.
+    Compare {
+        /// Reconstructed points.
+        #[arg(long)]
+        reconstructed: PathBuf,
+        /// Reference points.
+        #[arg(long)]
+        reference: PathBuf,
+        /// Print JSON instead of tables.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Reconstruct identified dots (CSV `image,point,col,row[,kind]`, `point` = ray id; with a
+    /// `kind` column only the `dot` rows) into a PLY point cloud.
+    Reconstruct {
+        /// The calibrated system (system.json).
+        #[arg(long)]
+        system: PathBuf,
+        /// Dot observations.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output PLY file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// ASCII PLY instead of binary.
+        #[arg(long)]
+        ascii: bool,
+        /// Image noise (px): adds the propagated σ of every point.
+        #[arg(long)]
+        sigma_px: Option<f64>,
+        /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
     },
     /// Space resection: the exterior orientation of every image from known control.
     Resect {
@@ -57,6 +95,80 @@ enum Command {
         #[arg(long)]
         gravity: bool,
     },
+    /// Calibration steps.
+    Calibrate {
+        #[command(subcommand)]
+        what: CalibrateWhat,
+    },
+    /// Timings: camera calibration of the paper scenario and of a large network.
+    Bench {
+        /// Images of the large network.
+        #[arg(long, default_value_t = 200)]
+        images: u32,
+        /// Targets of the large network.
+        #[arg(long, default_value_t = 1000)]
+        targets: u32,
+    },
+}
+
+#[derive(Subcommand)]
+enum CalibrateWhat {
+    /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
+    /// writes system.json ("deltaz.system/1").
+    Projector {
+        /// camera.json (inner orientation and pixel mapping).
+        #[arg(long)]
+        camera: PathBuf,
+        /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
+        #[arg(long)]
+        control: PathBuf,
+        /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
+        /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output system.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
+        #[arg(long, default_value = "paper")]
+        model: deltaz_host::projector_calibration::Model,
+        /// Image noise (px) weighting the plane points and giving the rays' covariances.
+        #[arg(long, default_value_t = 0.5)]
+        image_sigma_px: f64,
+    },
+    /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
+    Camera {
+        /// The starting sensor: camera_init.json (pixel mapping, approximate f).
+        #[arg(long)]
+        init: PathBuf,
+        /// Target observations CSV.
+        #[arg(long)]
+        obs: PathBuf,
+        /// Control CSV (point,X,Y,Z,sigma).
+        #[arg(long)]
+        control: PathBuf,
+        /// Output camera.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also estimate k2.
+        #[arg(long)]
+        k2: bool,
+        /// Also estimate k3.
+        #[arg(long)]
+        k3: bool,
+        /// Also estimate p1.
+        #[arg(long)]
+        p1: bool,
+        /// Also estimate p2.
+        #[arg(long)]
+        p2: bool,
+        /// Free network: control only gives approximate values; minimal constraints.
+        #[arg(long)]
+        free_network: bool,
+        /// A priori σ of image coordinates (px), weighting control against images.
+        #[arg(long, default_value_t = 0.5)]
+        image_sigma_px: f64,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -79,6 +191,28 @@ fn main() -> anyhow::Result<()> {
                 out.display()
             );
         }
+        Command::Compare {
+            reconstructed,
+            reference,
+            json,
+        } => cli::compare(&reconstructed, &reference, json)?,
+        Command::Reconstruct {
+            system,
+            obs,
+            out,
+            csv,
+            ascii,
+            sigma_px,
+            method,
+        } => cli::reconstruct(&cli::ReconstructArgs {
+            system,
+            obs,
+            out,
+            csv,
+            ascii,
+            sigma_px,
+            method,
+        })?,
         Command::Resect {
             camera,
             obs,
@@ -117,6 +251,72 @@ fn main() -> anyhow::Result<()> {
                 images.len(),
                 out.display()
             );
+        }
+        Command::Calibrate {
+            what:
+                CalibrateWhat::Projector {
+                    camera,
+                    control,
+                    obs,
+                    out,
+                    model,
+                    image_sigma_px,
+                },
+        } => cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?,
+        Command::Calibrate {
+            what:
+                CalibrateWhat::Camera {
+                    init,
+                    obs,
+                    control,
+                    out,
+                    k2,
+                    k3,
+                    p1,
+                    p2,
+                    free_network,
+                    image_sigma_px,
+                },
+        } => {
+            let mut options = bundle::CalibrationOptions {
+                free_network,
+                image_sigma_px,
+                ..Default::default()
+            };
+            for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
+                options.free.inner[k] |= on;
+            }
+            let file = bundle::calibrate_files(&init, &obs, &control, &out, &options)?;
+            print!("{}", bundle::summary(&file, &options.free));
+        }
+        Command::Bench { images, targets } => {
+            for scenario in [
+                simulate::Scenario::paper(),
+                simulate::Scenario::large(images, targets),
+            ] {
+                let sim = simulate::simulate(&scenario, 1);
+                let options = bundle::CalibrationOptions::default();
+                let start = std::time::Instant::now();
+                let problem = bundle::build_problem(
+                    std::path::Path::new("simulated"),
+                    &sim.camera_init.grid(),
+                    &sim.camera_init.inner(),
+                    &sim.camera_obs,
+                    &sim.camera_control,
+                    &options,
+                )?;
+                let cal = bundle::calibrate(problem, &options)?;
+                println!(
+                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm",
+                    scenario.name,
+                    cal.problem.images.len(),
+                    cal.problem.xyz.len(),
+                    sim.camera_obs.len(),
+                    start.elapsed().as_secs_f64(),
+                    cal.iterations,
+                    cal.solution.sigma0
+                );
+            }
         }
     }
     Ok(())

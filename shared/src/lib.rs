@@ -11,6 +11,7 @@
 //! | [`identify`] | section 4 (open problem) | which projector ray made each detected dot (epipolar segments) |
 //! | [`intersection`] | eqs (8), (9) | λ, λp, and a least-squares closest approach |
 //! | [`rig`] | section 2 | camera + projector: an image point and a ray id → a 3D point |
+//! | [`protocol`] | — | the host ↔ device wire protocol (messages, frames, calibration blob) |
 //!
 //! # Glossary and conventions
 //! - Units: millimetres and radians everywhere.
@@ -33,6 +34,7 @@ pub mod collinearity;
 pub mod identify;
 pub mod intersection;
 pub mod projector;
+pub mod protocol;
 pub mod rig;
 pub mod rotation;
 

@@ -84,3 +84,63 @@ pub fn run_qemu_until(elf: &Path, marker: &str, timeout: Duration) -> String {
     let _ = child.wait();
     String::from_utf8_lossy(&output).into_owned()
 }
+
+/// Helpers for the device tests: a calibrated rig with the full dot pattern and its centroids.
+pub mod pattern {
+    use deltaz_firmware::smoke::paper_camera;
+    use deltaz_shared::projector::{Projector, ProjectorRay};
+    use deltaz_shared::rig::Rig;
+    use nalgebra::Vector3;
+
+    /// Rows of the dot pattern.
+    pub const ROWS: u16 = 20;
+    /// Columns of the dot pattern.
+    pub const COLS: u16 = 22;
+
+    /// The paper's rig (Tables 1-3) with a 20 × 22 pattern of 440 rays, ids row·100 + col,
+    /// whose directions span Table 4's: direction ∝ (tx, ty, −1) with tx from 0.0934 (ray 01)
+    /// to 0.4237 (ray 03) over the columns and ty from −0.1751 (ray 01) to 0.1343 (ray 21) over
+    /// the rows.
+    pub fn pattern_rig() -> Rig<f64, Vec<ProjectorRay<f64>>> {
+        let camera = paper_camera();
+        let lerp = |a: f64, b: f64, i: u16, n: u16| a + (b - a) * f64::from(i) / f64::from(n - 1);
+        let rays = (0..ROWS)
+            .flat_map(|r| (0..COLS).map(move |c| (r, c)))
+            .map(|(r, c)| ProjectorRay {
+                id: r * 100 + c,
+                direction: Vector3::new(
+                    lerp(0.0934, 0.4237, c, COLS),
+                    lerp(-0.1751, 0.1343, r, ROWS),
+                    -1.0,
+                )
+                .normalize(),
+                offset: Vector3::zeros(),
+            })
+            .collect();
+        let projector = Projector::new(Vector3::new(-114.601, 383.502, 1905.981), rays)
+            .expect("a sorted table of unit rays");
+        Rig::new(camera.grid, camera.inner, &camera.exterior, projector)
+    }
+
+    /// The centroids `(id, col, row)` of every dot the camera sees on the plate Z = `z` (world),
+    /// each shifted by `shift` pixels.
+    pub fn plate_centroids(
+        rig: &Rig<f64, Vec<ProjectorRay<f64>>>,
+        z: f64,
+        shift: (f64, f64),
+    ) -> Vec<(u16, f64, f64)> {
+        let camera = paper_camera();
+        let x0 = rig.camera_centre();
+        rig.projector_centred()
+            .rays()
+            .iter()
+            .filter_map(|ray| {
+                let line = rig.projector_centred().ray(ray.id).ok()?;
+                let t = (z - x0.z - line.point.z) / line.direction.z;
+                let (col, row) = camera.world_to_pixel(&(line.at(t) + x0)).ok()?;
+                let (col, row) = (col + shift.0, row + shift.1);
+                camera.grid.contains(col, row).then_some((ray.id, col, row))
+            })
+            .collect()
+    }
+}

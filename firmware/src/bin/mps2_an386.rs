@@ -1,11 +1,28 @@
 //! Board shell for QEMU's `mps2-an386` (Cortex-M4F, CMSDK UART0 at 0x4000_4000).
+//!
+//! At boot it prints the smoke line (followed by a 0x00 so a host's frame reader drops it), then
+//! serves the protocol on UART0 until a `Reset` request, and resets.
+//!
+//! The calibration "flash" is the top 64 KiB of the 4 MiB code SRAM (0x003F_0000), outside every
+//! linker region (see `build.rs`): `-kernel` loads only the ELF's segments, so a system reset
+//! (SYSRESETREQ, or `system_reset` in the monitor) reloads the program but keeps this region,
+//! and the calibration survives. A new QEMU process starts with it zeroed: no calibration.
+//! SysTick runs from the 25 MHz core clock; under `-icount shift=0` one tick is 40 instructions.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 
 #[cfg(target_os = "none")]
 mod board {
-    use core::fmt::Write;
+    use cortex_m::peripheral::{syst::SystClkSource, SCB, SYST};
     use cortex_m_rt::entry;
+    use deltaz_firmware::device::{Clock, Device, MAX_CALIBRATION};
+    use deltaz_firmware::server::Server;
+    use deltaz_firmware::store::{Store, HEADER};
+    use embedded_io::{ErrorType, Read, Write};
+    use embedded_storage::nor_flash::{
+        check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash,
+        NorFlashErrorKind, ReadNorFlash,
+    };
     use panic_halt as _;
 
     /// CMSDK APB UART0 of the mps2-an386 board.
@@ -16,6 +33,8 @@ mod board {
     const STATE: usize = UART0 + 0x04;
     const CTRL: usize = UART0 + 0x08;
     const BAUDDIV: usize = UART0 + 0x10;
+    const TX_FULL: u32 = 1;
+    const RX_FULL: u32 = 2;
 
     impl Uart0 {
         fn init() -> Self {
@@ -28,19 +47,137 @@ mod board {
             Uart0
         }
 
+        fn state(&self) -> u32 {
+            // SAFETY: as in `init`; reading STATE has no side effect.
+            unsafe { core::ptr::read_volatile(STATE as *const u32) }
+        }
+
         fn write_byte(&mut self, byte: u8) {
-            // SAFETY: as in `init`; STATE bit 0 is "TX buffer full".
-            unsafe {
-                while core::ptr::read_volatile(STATE as *const u32) & 1 != 0 {}
-                core::ptr::write_volatile(DATA as *mut u32, u32::from(byte));
+            while self.state() & TX_FULL != 0 {}
+            // SAFETY: as in `init`; TX has room.
+            unsafe { core::ptr::write_volatile(DATA as *mut u32, u32::from(byte)) };
+        }
+
+        fn read_byte(&mut self) -> u8 {
+            while self.state() & RX_FULL == 0 {}
+            // SAFETY: as in `init`; RX holds a byte, reading DATA takes it.
+            unsafe { core::ptr::read_volatile(DATA as *const u32) as u8 }
+        }
+    }
+
+    impl ErrorType for Uart0 {
+        type Error = core::convert::Infallible;
+    }
+
+    impl Read for Uart0 {
+        fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+            let Some((first, rest)) = buf.split_first_mut() else {
+                return Ok(0);
+            };
+            *first = self.read_byte();
+            let mut n = 1;
+            for slot in rest {
+                if self.state() & RX_FULL == 0 {
+                    break;
+                }
+                *slot = self.read_byte();
+                n += 1;
             }
+            Ok(n)
         }
     }
 
     impl Write for Uart0 {
-        fn write_str(&mut self, s: &str) -> core::fmt::Result {
-            s.bytes().for_each(|b| self.write_byte(b));
+        fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+            buf.iter().for_each(|&b| self.write_byte(b));
+            Ok(buf.len())
+        }
+
+        fn flush(&mut self) -> Result<(), Self::Error> {
             Ok(())
+        }
+    }
+
+    /// Start of the calibration region (see the module docs and `build.rs`).
+    const REGION: usize = 0x003F_0000;
+    /// Its length.
+    const REGION_LEN: usize = 64 * 1024;
+    /// One slot: the header and the largest calibration, in whole 4 KiB sectors.
+    const SLOT: u32 = ((HEADER + MAX_CALIBRATION).div_ceil(4096) * 4096) as u32;
+    const _: () = assert!(2 * SLOT as usize <= REGION_LEN);
+
+    /// The emulated NOR flash: the calibration region with flash semantics (erase to 0xFF,
+    /// writes clear bits), so the store logic is the same as on a real board.
+    struct RegionFlash;
+
+    impl FlashErrorType for RegionFlash {
+        type Error = NorFlashErrorKind;
+    }
+
+    impl ReadNorFlash for RegionFlash {
+        const READ_SIZE: usize = 1;
+
+        fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+            check_read(self, offset, bytes.len())?;
+            for (i, b) in bytes.iter_mut().enumerate() {
+                // SAFETY: `check_read` kept offset + i inside the region, RAM reserved for this
+                // store alone (outside every linker region).
+                *b = unsafe {
+                    core::ptr::read_volatile((REGION + offset as usize + i) as *const u8)
+                };
+            }
+            Ok(())
+        }
+
+        fn capacity(&self) -> usize {
+            REGION_LEN
+        }
+    }
+
+    impl NorFlash for RegionFlash {
+        const WRITE_SIZE: usize = 4;
+        const ERASE_SIZE: usize = 4096;
+
+        fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+            check_erase(self, from, to)?;
+            for a in (REGION + from as usize..REGION + to as usize).step_by(4) {
+                // SAFETY: as in `read`; `check_erase` kept the word-aligned range inside.
+                unsafe { core::ptr::write_volatile(a as *mut u32, u32::MAX) };
+            }
+            Ok(())
+        }
+
+        fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+            check_write(self, offset, bytes.len())?;
+            for (i, b) in bytes.iter().enumerate() {
+                let a = (REGION + offset as usize + i) as *mut u8;
+                // SAFETY: as in `read`; `check_write` kept the range inside.
+                unsafe { core::ptr::write_volatile(a, core::ptr::read_volatile(a) & b) };
+            }
+            Ok(())
+        }
+    }
+
+    /// SysTick as a 24-bit up-counter of core clock ticks.
+    struct SysTickClock;
+
+    impl SysTickClock {
+        fn start(mut syst: SYST) -> Self {
+            syst.set_clock_source(SystClkSource::Core);
+            syst.set_reload(0x00FF_FFFF);
+            syst.clear_current();
+            syst.enable_counter();
+            SysTickClock
+        }
+    }
+
+    impl Clock for SysTickClock {
+        fn now(&mut self) -> u32 {
+            0x00FF_FFFF - SYST::get_current()
+        }
+
+        fn since(&mut self, start: u32) -> u32 {
+            self.now().wrapping_sub(start) & 0x00FF_FFFF
         }
     }
 
@@ -51,9 +188,14 @@ mod board {
             Some(p) => writeln!(uart, "deltaz smoke point {:.6} {:.6} {:.6}", p.x, p.y, p.z),
             None => writeln!(uart, "deltaz smoke degenerate"),
         };
-        loop {
-            cortex_m::asm::wfi();
+        uart.write_byte(0);
+        let clock = cortex_m::Peripherals::take().map(|p| SysTickClock::start(p.SYST));
+        let store = Store::new(RegionFlash, [(0, SLOT), (SLOT, 2 * SLOT)]);
+        if let (Some(clock), Ok(store)) = (clock, store) {
+            let mut server = Server::new(Device::boot(store, clock));
+            let Ok(()) = server.serve(&mut uart);
         }
+        SCB::sys_reset()
     }
 }
 

@@ -1,3 +1,678 @@
 //! Camera calibration by self-calibrating bundle adjustment (section 6.2.1, Table 1).
+//!
+//! Unknowns: the inner orientation (f, cx, cy, k1 by default, as in the paper), one exterior
+//! orientation per image and every target's coordinates. Control points enter as weighted
+//! observations of their coordinates (their σ); with [`CalibrationOptions::free_network`] they
+//! only give approximate values and the datum is fixed by minimal constraints (the 1st image's
+//! pose and one coordinate of the 2nd image's centre). Stations are initialised by space
+//! resection ([`crate::resection`]), tie points by intersection. Gross errors are removed by data
+//! snooping: the observation with the largest test value T = |v|² / (σ0² r̄) (r̄ the mean
+//! redundancy number) above χ²₂(0.999) = 13.8 is rejected and the adjustment repeated.
 
+pub mod problem;
 pub mod residual;
+pub mod solver;
+
+use crate::io::camera_file::{
+    CameraFile, Correlation, InnerParams, PoseParams, Rejected, Station, CAMERA_FORMAT, INNER_NAMES,
+};
+use crate::io::control::ControlPoint;
+use crate::io::observations::{image_labels, Observation, PointKind};
+use crate::io::FileError;
+use crate::resection::resect;
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
+use nalgebra::{Matrix3, Vector2, Vector3};
+use problem::{ControlObservation, FreeParameters, Problem, ProblemObservation};
+use residual::{image_residual, POSE};
+use solver::{solve, Solution, SolveError, SolverOptions};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// χ²(2 degrees of freedom) at 99.9 %: the data-snooping threshold.
+pub const SNOOPING_THRESHOLD: f64 = 13.8155;
+
+/// How to calibrate.
+#[derive(Debug, Clone, Copy)]
+pub struct CalibrationOptions {
+    /// Which inner parameters are estimated.
+    pub free: FreeParameters,
+    /// A priori σ of image coordinates (px); sets the weight of control against images.
+    pub image_sigma_px: f64,
+    /// Control gives approximate values only; datum by minimal constraints.
+    pub free_network: bool,
+    /// Remove gross errors by data snooping.
+    pub snooping: bool,
+    /// LM stopping rules.
+    pub solver: SolverOptions,
+}
+
+impl Default for CalibrationOptions {
+    fn default() -> Self {
+        Self {
+            free: FreeParameters::default(),
+            image_sigma_px: 0.5,
+            free_network: false,
+            snooping: true,
+            solver: SolverOptions::default(),
+        }
+    }
+}
+
+/// A finished calibration.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    /// The adjusted problem.
+    pub problem: Problem,
+    /// The last adjustment's statistics.
+    pub solution: Solution,
+    /// Rejected observations: (index into the caller's observations, residual in px).
+    pub rejected: Vec<(usize, f64)>,
+    /// LM iterations over all adjustments.
+    pub iterations: usize,
+}
+
+/// Builds the problem from files' contents: checks the configuration, resects every image and
+/// intersects the tie points. `obs_path` names the observations in errors.
+pub fn build_problem(
+    obs_path: &Path,
+    grid: &PixelGrid<f64>,
+    inner: &InnerOrientation<f64>,
+    observations: &[Observation],
+    control: &[ControlPoint],
+    options: &CalibrationOptions,
+) -> anyhow::Result<Problem> {
+    let targets: Vec<(usize, &Observation)> = observations
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.kind == PointKind::Control)
+        .collect();
+    let target_list: Vec<Observation> = targets.iter().map(|(_, o)| (*o).clone()).collect();
+    let images = image_labels(&target_list);
+    if images.len() < 2 {
+        return Err(FileError::whole(
+            obs_path,
+            format!(
+                "only {} image(s): self-calibration needs at least 2 (9 in the paper)",
+                images.len()
+            ),
+        )
+        .into());
+    }
+    let known: HashMap<&str, &ControlPoint> =
+        control.iter().map(|c| (c.point.as_str(), c)).collect();
+    let mut points: Vec<String> = Vec::new();
+    let mut point_index: HashMap<&str, usize> = HashMap::new();
+    let mut seen_in: Vec<usize> = Vec::new();
+    for (_, o) in &targets {
+        let j = *point_index.entry(o.point.as_str()).or_insert_with(|| {
+            points.push(o.point.clone());
+            seen_in.push(0);
+            points.len() - 1
+        });
+        seen_in[j] += 1;
+    }
+    for (_, o) in &targets {
+        let j = point_index[o.point.as_str()];
+        if !known.contains_key(o.point.as_str()) && seen_in[j] < 2 {
+            return Err(FileError::at(
+                obs_path,
+                o.line,
+                format!(
+                    "unknown point {:?}: not in the control file and seen in only one image",
+                    o.point
+                ),
+            )
+            .into());
+        }
+    }
+
+    // Stations by resection from the control each image sees.
+    let mut poses = Vec::with_capacity(images.len());
+    for image in &images {
+        let pts: Vec<(Vector2<f64>, Vector3<f64>)> = targets
+            .iter()
+            .filter(|(_, o)| &o.image == image)
+            .filter_map(|(_, o)| {
+                known
+                    .get(o.point.as_str())
+                    .map(|c| (Vector2::new(o.col, o.row), c.xyz))
+            })
+            .collect();
+        let r = resect(grid, inner, &pts).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: image {image:?}: cannot resect: {e}",
+                obs_path.display()
+            )
+        })?;
+        poses.push(r.exterior);
+    }
+    let image_index: HashMap<&str, usize> = images
+        .iter()
+        .enumerate()
+        .map(|(i, l)| (l.as_str(), i))
+        .collect();
+    let problem_obs: Vec<ProblemObservation> = targets
+        .iter()
+        .map(|(n, o)| ProblemObservation {
+            image: image_index[o.image.as_str()],
+            point: point_index[o.point.as_str()],
+            photo: grid.pixel_to_photo(o.col, o.row),
+            source: *n,
+            active: true,
+        })
+        .collect();
+
+    // Points: control coordinates, or the intersection of their rays.
+    let mut xyz = Vec::with_capacity(points.len());
+    let mut control_obs = Vec::with_capacity(points.len());
+    for (j, label) in points.iter().enumerate() {
+        if let Some(c) = known.get(label.as_str()) {
+            xyz.push(c.xyz);
+            control_obs.push((!options.free_network).then_some(ControlObservation {
+                xyz: c.xyz,
+                sigma: c.sigma,
+            }));
+        } else {
+            let mut n = Matrix3::zeros();
+            let mut rhs = Vector3::zeros();
+            for o in problem_obs.iter().filter(|o| o.point == j) {
+                let pose = &poses[o.image];
+                let refined = inner.refine(o.photo);
+                let d = (pose.r_cam_world().transpose()
+                    * Vector3::new(refined.x, refined.y, -inner.f))
+                .normalize();
+                let p = Matrix3::identity() - d * d.transpose();
+                n += p;
+                rhs += p * pose.centre;
+            }
+            let x = n.try_inverse().map(|ni| ni * rhs).ok_or_else(|| {
+                anyhow::anyhow!("point {label:?}: its rays are parallel, cannot intersect")
+            })?;
+            xyz.push(x);
+            control_obs.push(None);
+        }
+    }
+    let mut pose_free = vec![[true; POSE]; images.len()];
+    if options.free_network || control_obs.iter().all(|c| c.is_none()) {
+        pose_free[0] = [false; POSE];
+        let baseline = poses[1].centre - poses[0].centre;
+        pose_free[1][3 + baseline.iamax()] = false;
+    }
+    Ok(Problem {
+        grid: *grid,
+        inner: *inner,
+        free: options.free,
+        images,
+        poses,
+        pose_free,
+        points,
+        xyz,
+        control: control_obs,
+        observations: problem_obs,
+        image_sigma_mm: options.image_sigma_px * grid.pixel_size,
+    })
+}
+
+/// Adjusts the problem, with data snooping if asked.
+pub fn calibrate(
+    mut problem: Problem,
+    options: &CalibrationOptions,
+) -> Result<Calibration, SolveError> {
+    let mut rejected = Vec::new();
+    let mut iterations = 0;
+    loop {
+        let solution = solve(&mut problem, &options.solver)?;
+        iterations += solution.iterations;
+        if !options.snooping {
+            return Ok(Calibration {
+                problem,
+                solution,
+                rejected,
+                iterations,
+            });
+        }
+        let equations = solution.redundancy as f64
+            + (problem.num_states_camera() + 3 * problem.xyz.len()) as f64;
+        let mean_redundancy = solution.redundancy as f64 / equations;
+        let var = solution.sigma0 * solution.sigma0 * mean_redundancy;
+        let mut active_per_point = vec![0usize; problem.xyz.len()];
+        for o in problem.observations.iter().filter(|o| o.active) {
+            active_per_point[o.point] += 1;
+        }
+        let worst = problem
+            .observations
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.active)
+            .filter(|(_, o)| problem.control[o.point].is_some() || active_per_point[o.point] > 2)
+            .map(|(n, o)| {
+                let r = image_residual(
+                    &problem.inner,
+                    &o.photo,
+                    &problem.poses[o.image],
+                    &problem.xyz[o.point],
+                );
+                (n, r.value.norm_squared() / var, r.value.norm())
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match worst {
+            Some((n, t, v))
+                if t > SNOOPING_THRESHOLD && rejected.len() * 10 < problem.observations.len() =>
+            {
+                problem.observations[n].active = false;
+                rejected.push((problem.observations[n].source, v / problem.grid.pixel_size));
+            }
+            _ => {
+                return Ok(Calibration {
+                    problem,
+                    solution,
+                    rejected,
+                    iterations,
+                })
+            }
+        }
+    }
+}
+
+impl Calibration {
+    /// σ of inner parameter `k` (0 if held fixed).
+    pub fn inner_sigma(&self, k: usize) -> f64 {
+        self.problem
+            .state_index_inner(k)
+            .map_or(0.0, |s| self.solution.camera_covariance[(s, s)].sqrt())
+    }
+
+    /// The calibration as `camera.json`.
+    pub fn camera_file(&self, observations: &[Observation]) -> CameraFile {
+        let p = &self.problem;
+        let cov = &self.solution.camera_covariance;
+        let sd = |s: Option<usize>| s.map_or(0.0, |s| cov[(s, s)].sqrt());
+        let px = p.grid.pixel_size;
+        let mut sum = vec![(0.0, 0usize); p.images.len()];
+        for o in p.observations.iter().filter(|o| o.active) {
+            let r = image_residual(&p.inner, &o.photo, &p.poses[o.image], &p.xyz[o.point]);
+            sum[o.image].0 += r.value.norm_squared();
+            sum[o.image].1 += 1;
+        }
+        let stations = p
+            .images
+            .iter()
+            .enumerate()
+            .map(|(i, image)| Station {
+                image: image.clone(),
+                pose: PoseParams::from(p.poses[i]),
+                sigma: Some(PoseParams::from_array(std::array::from_fn(|k| {
+                    sd(p.state_index_pose(i, k))
+                }))),
+                sigma0: None,
+                rms_px: Some((sum[i].0 / (2 * sum[i].1.max(1)) as f64).sqrt() / px),
+                observations: Some(sum[i].1),
+            })
+            .collect();
+        let total: (f64, usize) = sum.iter().fold((0.0, 0), |a, s| (a.0 + s.0, a.1 + s.1));
+        let m = cov.nrows();
+        let mut correlations = Vec::new();
+        for a in 0..m {
+            for b in a + 1..m {
+                let r = cov[(a, b)] / (cov[(a, a)] * cov[(b, b)]).sqrt();
+                if r.abs() > 0.9 {
+                    correlations.push(Correlation {
+                        a: p.camera_state_name(a),
+                        b: p.camera_state_name(b),
+                        r,
+                    });
+                }
+            }
+        }
+        let rejected = self
+            .rejected
+            .iter()
+            .map(|(n, v)| {
+                let o = &observations[*n];
+                Rejected {
+                    image: o.image.clone(),
+                    point: o.point.clone(),
+                    col: o.col,
+                    row: o.row,
+                    residual_px: *v,
+                }
+            })
+            .collect();
+        CameraFile {
+            format: CAMERA_FORMAT.to_owned(),
+            inner: p.inner.into(),
+            sigma: InnerParams::from_array(std::array::from_fn(|k| self.inner_sigma(k))),
+            sigma0: Some(self.solution.sigma0),
+            pixel_size: px,
+            image_size: [p.grid.width, p.grid.height],
+            origin: [p.grid.origin_col, p.grid.origin_row],
+            stations,
+            correlations,
+            rms_px: Some((total.0 / (2 * total.1.max(1)) as f64).sqrt() / px),
+            rejected,
+            iterations: Some(self.iterations),
+        }
+    }
+}
+
+/// The whole command: read the three inputs, calibrate, write `out` atomically. Nothing is
+/// written if anything fails.
+pub fn calibrate_files(
+    init: &Path,
+    obs: &Path,
+    control: &Path,
+    out: &Path,
+    options: &CalibrationOptions,
+) -> anyhow::Result<CameraFile> {
+    let start = crate::io::camera_file::read_camera(init)?;
+    let observations = crate::io::observations::read_observations(obs)?;
+    let control = crate::io::control::read_control(control)?;
+    let problem = build_problem(
+        obs,
+        &start.grid(),
+        &start.inner(),
+        &observations,
+        &control,
+        options,
+    )?;
+    let calibration = calibrate(problem, options)?;
+    let file = calibration.camera_file(&observations);
+    crate::io::camera_file::write_camera(out, &file)?;
+    Ok(file)
+}
+
+/// A short report of a calibration: the free inner parameters with σ, σ0, RMS, rejections.
+pub fn summary(file: &CameraFile, free: &FreeParameters) -> String {
+    let mut text = String::new();
+    let (values, sigma) = (file.inner.to_array(), file.sigma.to_array());
+    for (k, name) in INNER_NAMES
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| free.inner[*k])
+    {
+        text.push_str(&format!(
+            "{name:>3} = {:>12.6e} ± {:.2e}\n",
+            values[k], sigma[k]
+        ));
+    }
+    text.push_str(&format!(
+        "σ0 = {:.4} mm, RMS {:.3} px, {} iterations, {} rejected, {} correlations > 0.9\n",
+        file.sigma0.unwrap_or(f64::NAN),
+        file.rms_px.unwrap_or(f64::NAN),
+        file.iterations.unwrap_or(0),
+        file.rejected.len(),
+        file.correlations.len()
+    ));
+    for r in &file.rejected {
+        text.push_str(&format!(
+            "rejected: image {} point {} ({:.1} px)\n",
+            r.image, r.point, r.residual_px
+        ));
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::{simulate, Scenario, Simulation};
+
+    fn run(sim: &Simulation, options: &CalibrationOptions) -> Calibration {
+        let init = &sim.camera_init;
+        let problem = build_problem(
+            Path::new("camera_obs.csv"),
+            &init.grid(),
+            &init.inner(),
+            &sim.camera_obs,
+            &sim.camera_control,
+            options,
+        )
+        .unwrap();
+        calibrate(problem, options).unwrap()
+    }
+
+    /// Normalised errors (estimate − truth) / σ of f, cx, cy, k1.
+    fn z_scores(cal: &Calibration, truth: &InnerParams) -> [f64; 4] {
+        let est = InnerParams::from(cal.problem.inner).to_array();
+        let t = truth.to_array();
+        std::array::from_fn(|k| (est[k] - t[k]) / cal.inner_sigma(k))
+    }
+
+    fn paper_sigma0_mm() -> f64 {
+        0.5 * 0.045
+    }
+
+    /// Paper scenario at 0.5 px: f, cx, cy, k1 within 3σ of truth; σ0 within 20 % of the true
+    /// noise; σ of the order of Table 1's (f 0.066 mm, cx 0.052, cy 0.068, k1 1e-6).
+    #[test]
+    fn paper_scenario_within_3_sigma() {
+        let sim = simulate(&Scenario::paper(), 1);
+        let cal = run(&sim, &CalibrationOptions::default());
+        for (k, z) in z_scores(&cal, &sim.truth.camera.inner).iter().enumerate() {
+            assert!(z.abs() < 3.0, "{}: {z:.2}σ", INNER_NAMES[k]);
+        }
+        let s0 = cal.solution.sigma0;
+        assert!((s0 / paper_sigma0_mm() - 1.0).abs() < 0.2, "σ0 {s0} mm");
+        let table1 = [0.066, 0.052, 0.068, 1e-6];
+        for (k, t) in table1.iter().enumerate() {
+            let ratio = cal.inner_sigma(k) / t;
+            assert!(
+                (0.2..5.0).contains(&ratio),
+                "σ {} {ratio}x Table 1",
+                INNER_NAMES[k]
+            );
+        }
+        assert!(cal.rejected.len() <= 1, "{:?}", cal.rejected);
+        let file = cal.camera_file(&sim.camera_obs);
+        assert_eq!(file.stations.len(), 9);
+        assert!((file.rms_px.unwrap() - 0.5).abs() < 0.1);
+        assert_eq!(file.sigma.k2, 0.0);
+    }
+
+    /// Without noise (and exact, fixed control) the truth comes back exactly.
+    #[test]
+    fn noise_free_recovers_truth() {
+        let mut scenario = Scenario::paper();
+        scenario.noise.image_sigma_px = 0.0;
+        scenario.field.control_sigma = 0.0;
+        let sim = simulate(&scenario, 1);
+        let options = CalibrationOptions {
+            snooping: false,
+            ..CalibrationOptions::default()
+        };
+        let cal = run(&sim, &options);
+        let est = InnerParams::from(cal.problem.inner).to_array();
+        for (k, t) in sim.truth.camera.inner.to_array().iter().enumerate() {
+            assert!(
+                (est[k] - t).abs() < 1e-7 * t.abs().max(1e-3),
+                "{}",
+                INNER_NAMES[k]
+            );
+        }
+        for (pose, truth) in cal.problem.poses.iter().zip(&sim.truth.stations) {
+            assert!(
+                (pose.centre - Vector3::new(truth.pose.X0, truth.pose.Y0, truth.pose.Z0)).amax()
+                    < 1e-5
+            );
+        }
+    }
+
+    /// Monte Carlo over 50 seeds: the normalised errors of f, cx, cy, k1 have mean near 0 and
+    /// variance near 1. Bounds: the mean of 50 standard normals has σ 0.14, so |mean| < 0.5
+    /// (3.5σ); the sample variance of 50 has 99.9 % limits 0.50..1.72 (χ²₄₉), so 0.5..1.75.
+    /// Control noise (0.1 mm) is part of the stochastic model, so the σ must cover it.
+    #[test]
+    fn monte_carlo_normalised_errors() {
+        let scenario = Scenario::paper();
+        let options = CalibrationOptions {
+            snooping: false,
+            ..CalibrationOptions::default()
+        };
+        let seeds = 100..150;
+        let z: Vec<[f64; 4]> = seeds
+            .map(|seed| {
+                z_scores(
+                    &run(&simulate(&scenario, seed), &options),
+                    &scenario.camera.inner,
+                )
+            })
+            .collect();
+        let n = z.len() as f64;
+        for k in 0..4 {
+            let mean = z.iter().map(|v| v[k]).sum::<f64>() / n;
+            let var = z.iter().map(|v| (v[k] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            println!("{}: mean {mean:.3} variance {var:.3}", INNER_NAMES[k]);
+            assert!(mean.abs() < 0.5, "{}: mean {mean}", INNER_NAMES[k]);
+            assert!(
+                (0.5..1.75).contains(&var),
+                "{}: variance {var}",
+                INNER_NAMES[k]
+            );
+        }
+    }
+
+    /// 2 % of the observations displaced by 5-20 px are all flagged, few good ones are, and the
+    /// inner orientation stays within 3σ.
+    #[test]
+    fn outliers_are_flagged() {
+        let mut scenario = Scenario::paper();
+        scenario.noise.outlier_rate = 0.02;
+        for seed in [1, 2, 3] {
+            let sim = simulate(&scenario, seed);
+            let cal = run(&sim, &CalibrationOptions::default());
+            let flagged: Vec<(&str, &str)> = cal
+                .rejected
+                .iter()
+                .map(|(n, _)| {
+                    (
+                        sim.camera_obs[*n].image.as_str(),
+                        sim.camera_obs[*n].point.as_str(),
+                    )
+                })
+                .collect();
+            let outliers = &sim.truth.noise.outliers;
+            assert!(!outliers.is_empty());
+            for o in outliers {
+                assert!(
+                    flagged.contains(&(o.image.as_str(), o.point.as_str())),
+                    "seed {seed}: {o:?} missed"
+                );
+            }
+            assert!(
+                flagged.len() <= outliers.len() + 2,
+                "seed {seed}: {} flagged for {}",
+                flagged.len(),
+                outliers.len()
+            );
+            for (k, z) in z_scores(&cal, &scenario.camera.inner).iter().enumerate() {
+                assert!(z.abs() < 3.0, "seed {seed} {}: {z:.2}σ", INNER_NAMES[k]);
+            }
+        }
+    }
+
+    /// A free network (control for approximations only, minimal constraints) gives the same
+    /// inner orientation within 3σ, and k2, p1, p2 freed by flag estimate their true zero.
+    #[test]
+    fn free_network_and_extra_parameters() {
+        let sim = simulate(&Scenario::paper(), 4);
+        let options = CalibrationOptions {
+            free_network: true,
+            free: FreeParameters {
+                inner: [true, true, true, true, true, false, true, true],
+            },
+            ..CalibrationOptions::default()
+        };
+        let cal = run(&sim, &options);
+        assert_eq!(cal.problem.num_states_inner(), 7);
+        assert_eq!(cal.problem.state_index_pose(0, 0), None);
+        for (k, t) in sim.truth.camera.inner.to_array().iter().enumerate() {
+            if options.free.inner[k] {
+                let z =
+                    (InnerParams::from(cal.problem.inner).to_array()[k] - t) / cal.inner_sigma(k);
+                assert!(z.abs() < 3.0, "{}: {z:.2}σ", INNER_NAMES[k]);
+            }
+        }
+        assert!(!cal.camera_file(&sim.camera_obs).correlations.is_empty());
+    }
+
+    /// Malformed input: an error naming file, line and problem, and no output file.
+    #[test]
+    fn malformed_input_names_file_and_line_and_writes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let sim = simulate(&Scenario::paper(), 1);
+        crate::simulate::write_simulation(d, &sim).unwrap();
+        let obs_text = std::fs::read_to_string(d.join("camera_obs.csv")).unwrap();
+        let mut lines: Vec<String> = obs_text.lines().map(str::to_owned).collect();
+        let out = d.join("camera.json");
+        let cases: Vec<(String, &str)> = vec![
+            (
+                obs_text.replacen("image,point,col,row", "image,point,col,line", 1),
+                ":1: missing column `row`",
+            ),
+            (
+                {
+                    let mut l = lines.clone();
+                    l[5] = l[5].rsplit_once(',').unwrap().0.to_owned() + ",NaN";
+                    l.join("\n")
+                },
+                ":6: `row` is not finite",
+            ),
+            (
+                {
+                    let mut l = lines.clone();
+                    l[7] = l[7].replacen("T0", "X9", 1);
+                    l.join("\n")
+                },
+                ":8: unknown point \"X9",
+            ),
+            (
+                {
+                    let l: Vec<_> = lines
+                        .iter()
+                        .filter(|l| !l.starts_with("s2") || l.starts_with("image"))
+                        .take(40)
+                        .cloned()
+                        .collect();
+                    l.join("\n")
+                },
+                "only 1 image(s)",
+            ),
+            (
+                {
+                    lines.insert(10, lines[9].clone());
+                    lines.join("\n")
+                },
+                ":11: duplicate observation",
+            ),
+        ];
+        for (text, expect) in cases {
+            let obs = d.join("bad_obs.csv");
+            std::fs::write(&obs, text).unwrap();
+            let e = calibrate_files(
+                &d.join("camera_init.json"),
+                &obs,
+                &d.join("camera_control.csv"),
+                &out,
+                &CalibrationOptions::default(),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(
+                e.contains("bad_obs.csv") && e.contains(expect),
+                "{e} lacks {expect}"
+            );
+            assert!(!out.exists());
+        }
+        let file = calibrate_files(
+            &d.join("camera_init.json"),
+            &d.join("camera_obs.csv"),
+            &d.join("camera_control.csv"),
+            &out,
+            &CalibrationOptions::default(),
+        )
+        .unwrap();
+        let back = crate::io::camera_file::read_camera(&out).unwrap();
+        assert!((back.inner.f - file.inner.f).abs() < 1e-12 && back.stations.len() == 9);
+    }
+}

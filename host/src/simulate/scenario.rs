@@ -188,3 +188,17 @@ impl Scenario {
         toml::from_str(text)
     }
 }
+
+impl Scenario {
+    /// A large network for benchmarks: the paper's camera and rig, `images` stations and about
+    /// `targets` targets (a square-ish grid) on the paper's field.
+    pub fn large(images: u32, targets: u32) -> Self {
+        let mut s = Scenario::paper();
+        s.name = format!("large-{images}x{targets}");
+        let nx = ((f64::from(targets) * 10.0 / 7.0).sqrt().round() as u32).max(2);
+        s.field.grid = [nx, targets.div_ceil(nx).max(2)];
+        s.stations.count = images;
+        s.stations.rolls = vec![0.0, std::f64::consts::FRAC_PI_2, -0.3, 1.2];
+        s
+    }
+}

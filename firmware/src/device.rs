@@ -1,0 +1,283 @@
+//! The device: requests in, responses out. It holds the active calibration as an f32 rig centred
+//! on the camera, an upload in progress, and the calibration store.
+
+use crate::store::{Store, StoreError};
+use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::protocol::calibration::{decode_calibration, CalibrationHeader, WireRay};
+use deltaz_shared::protocol::frame::CRC;
+use deltaz_shared::protocol::{
+    centroid_fraction_bits, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, ErrorCode,
+    PointResult, Request, RequestBody, Response, ResponseBody, MAX_BATCH, MAX_FRAME,
+    PROTOCOL_VERSION,
+};
+use deltaz_shared::rig::{Method, Rig};
+use embedded_storage::nor_flash::NorFlash;
+use nalgebra::{Matrix3, Vector3};
+
+/// The firmware version reported by `Info` (the crate version).
+pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
+/// The most projector rays a calibration may hold.
+pub const MAX_RAYS: usize = 512;
+/// The longest calibration blob (bytes): [`MAX_RAYS`] rays of at most 28 bytes plus the header.
+pub const MAX_CALIBRATION: usize = 16 * 1024;
+
+/// The device's rig: f32, centred on the camera (its camera centre is zero).
+pub type DeviceRig = Rig<f32, heapless::Vec<ProjectorRay<f32>, MAX_RAYS>>;
+
+/// A tick counter for timing the compute (SysTick on a board).
+pub trait Clock {
+    /// The counter now.
+    fn now(&mut self) -> u32;
+    /// Ticks since `start` (a reading of [`Clock::now`]); a full 32-bit up-counter by default.
+    fn since(&mut self, start: u32) -> u32 {
+        self.now().wrapping_sub(start)
+    }
+}
+
+/// No clock: every compute takes 0 ticks.
+pub struct NoClock;
+
+impl Clock for NoClock {
+    fn now(&mut self) -> u32 {
+        0
+    }
+}
+
+/// The active calibration.
+struct Active {
+    rig: DeviceRig,
+    method: Method,
+    summary: CalibrationSummary,
+}
+
+/// An upload in progress.
+struct Upload {
+    len: usize,
+    crc: u32,
+    received: usize,
+}
+
+/// The device logic, generic over the calibration flash and the tick clock.
+pub struct Device<F, C> {
+    store: Store<F>,
+    clock: C,
+    active: Option<Active>,
+    upload: Option<Upload>,
+    staging: [u8; MAX_CALIBRATION],
+    stats: DeviceStats,
+    reset: bool,
+}
+
+impl<F: NorFlash, C: Clock> Device<F, C> {
+    /// Boot: load the newest valid calibration from the store, if any.
+    pub fn boot(store: Store<F>, clock: C) -> Self {
+        let mut device = Self {
+            store,
+            clock,
+            active: None,
+            upload: None,
+            staging: [0; MAX_CALIBRATION],
+            stats: DeviceStats {
+                requests: 0,
+                bad_frames: 0,
+                points: 0,
+                last_compute_ticks: 0,
+                last_compute_points: 0,
+            },
+            reset: false,
+        };
+        device.active = device.load_stored();
+        device
+    }
+
+    /// Whether a `Reset` was answered: the board should restart now.
+    pub fn reset_requested(&self) -> bool {
+        self.reset
+    }
+
+    /// The store (for inspection).
+    pub fn store(&self) -> &Store<F> {
+        &self.store
+    }
+
+    /// Give the store back (a simulated reboot builds a new device from it).
+    pub fn into_store(self) -> Store<F> {
+        self.store
+    }
+
+    /// Count a frame that could not be read.
+    pub fn count_bad_frame(&mut self) {
+        self.stats.bad_frames = self.stats.bad_frames.wrapping_add(1);
+    }
+
+    /// Answer one request.
+    pub fn handle(&mut self, request: Request) -> Response {
+        self.stats.requests = self.stats.requests.wrapping_add(1);
+        let body = match request.body {
+            RequestBody::Info => Ok(ResponseBody::Info(self.info())),
+            RequestBody::UploadBegin { len, crc } => self.begin(len as usize, crc),
+            RequestBody::UploadChunk { offset, data } => self.chunk(offset as usize, &data),
+            RequestBody::UploadCommit => self.commit(),
+            RequestBody::Compute { centroids } => self.compute(&centroids),
+            RequestBody::Stats => Ok(ResponseBody::Stats(self.stats)),
+            RequestBody::Reset => {
+                self.reset = true;
+                Ok(ResponseBody::Resetting)
+            }
+        };
+        Response {
+            seq: request.seq,
+            body: body.unwrap_or_else(ResponseBody::Error),
+        }
+    }
+
+    fn info(&self) -> DeviceInfo {
+        DeviceInfo {
+            firmware: FIRMWARE_VERSION,
+            protocol: PROTOCOL_VERSION,
+            ray_capacity: MAX_RAYS as u16,
+            max_batch: MAX_BATCH as u16,
+            max_frame: MAX_FRAME as u32,
+            max_calibration: self.store.capacity().min(MAX_CALIBRATION) as u32,
+            calibration: self.active.as_ref().map(|a| a.summary),
+        }
+    }
+
+    fn begin(&mut self, len: usize, crc: u32) -> Result<ResponseBody, ErrorCode> {
+        self.upload = None;
+        if len > self.store.capacity().min(MAX_CALIBRATION) {
+            return Err(ErrorCode::TooLarge);
+        }
+        self.upload = Some(Upload {
+            len,
+            crc,
+            received: 0,
+        });
+        Ok(ResponseBody::UploadReady { len: len as u32 })
+    }
+
+    fn chunk(&mut self, offset: usize, data: &[u8]) -> Result<ResponseBody, ErrorCode> {
+        let upload = self.upload.as_mut().ok_or(ErrorCode::NoUpload)?;
+        let end = offset + data.len();
+        if offset != upload.received || end > upload.len {
+            return Err(ErrorCode::ChunkOutOfOrder);
+        }
+        self.staging
+            .get_mut(offset..end)
+            .ok_or(ErrorCode::ChunkOutOfOrder)?
+            .copy_from_slice(data);
+        upload.received = end;
+        Ok(ResponseBody::ChunkAccepted {
+            next_offset: end as u32,
+        })
+    }
+
+    fn commit(&mut self) -> Result<ResponseBody, ErrorCode> {
+        let upload = self.upload.take().ok_or(ErrorCode::NoUpload)?;
+        if upload.received < upload.len {
+            self.upload = Some(upload);
+            return Err(ErrorCode::UploadIncomplete);
+        }
+        let blob = &self.staging[..upload.len];
+        if CRC.checksum(blob) != upload.crc {
+            return Err(ErrorCode::UploadCrc);
+        }
+        // Validate completely before touching the flash.
+        let mut active = activate(blob, 0).ok_or(ErrorCode::InvalidCalibration)?;
+        let stored = self.store.save(blob).map_err(|e| match e {
+            StoreError::TooLarge => ErrorCode::TooLarge,
+            _ => ErrorCode::Storage,
+        })?;
+        active.summary.generation = stored.generation;
+        let summary = active.summary;
+        self.active = Some(active);
+        Ok(ResponseBody::Committed {
+            fingerprint: summary.fingerprint,
+            generation: summary.generation,
+        })
+    }
+
+    fn compute(&mut self, centroids: &[Centroid]) -> Result<ResponseBody, ErrorCode> {
+        let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
+        let bits = active.summary.centroid_bits;
+        let start = self.clock.now();
+        let points = centroids
+            .iter()
+            .map(|c| {
+                let (col, row) = c.pixel::<f32>(bits);
+                match active.rig.reconstruct(c.id, col, row, active.method) {
+                    Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
+                    Err(e) => PointResult::from_error(e),
+                }
+            })
+            .collect();
+        self.stats.last_compute_ticks = self.clock.since(start);
+        self.stats.last_compute_points = centroids.len() as u16;
+        self.stats.points = self.stats.points.wrapping_add(centroids.len() as u32);
+        Ok(ResponseBody::Points {
+            fingerprint: active.summary.fingerprint,
+            points,
+        })
+    }
+
+    fn load_stored(&mut self) -> Option<Active> {
+        let (stored, blob) = self.store.load(&mut self.staging)?;
+        activate(blob, stored.generation)
+    }
+}
+
+/// The f32 rig of a calibration blob, checked: every number finite, f and the pixel size
+/// positive, rays sorted with unit directions, at most [`MAX_RAYS`].
+fn activate(blob: &[u8], generation: u32) -> Option<Active> {
+    let mut rays = heapless::Vec::<ProjectorRay<f32>, MAX_RAYS>::new();
+    let header = decode_calibration(blob, |r: WireRay| {
+        let ray = ProjectorRay {
+            id: r.id,
+            direction: Vector3::from(r.direction),
+            offset: r.offset.map_or(Vector3::zeros(), Vector3::from),
+        };
+        rays.push(ray).is_ok()
+    })
+    .ok()?;
+    let CalibrationHeader {
+        fingerprint,
+        method,
+        grid,
+        inner,
+        r_cam_world,
+        camera_centre,
+        projector_centre,
+        ..
+    } = header;
+    let numbers = [grid.pixel_size, grid.origin_col, grid.origin_row]
+        .into_iter()
+        .chain([
+            inner.f, inner.cx, inner.cy, inner.k1, inner.k2, inner.k3, inner.p1, inner.p2,
+        ])
+        .chain(r_cam_world);
+    let finite =
+        numbers.into_iter().all(f32::is_finite) && camera_centre.iter().all(|c| c.is_finite());
+    if !finite || grid.pixel_size <= 0.0 || inner.f <= 0.0 {
+        return None;
+    }
+    let projector = Projector::new(Vector3::from(projector_centre), rays).ok()?;
+    let summary = CalibrationSummary {
+        fingerprint,
+        generation,
+        rays: projector.rays().len() as u16,
+        centroid_bits: centroid_fraction_bits(grid.width, grid.height),
+        camera_centre,
+    };
+    let rig = Rig::from_centred(
+        grid,
+        inner,
+        Matrix3::from_row_slice(&r_cam_world),
+        Vector3::zeros(),
+        projector,
+    );
+    Some(Active {
+        rig,
+        method: method.into(),
+        summary,
+    })
+}

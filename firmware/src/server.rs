@@ -1,0 +1,111 @@
+//! The framing layer around [`Device`]: bytes in, frames out, over any embedded-io serial port.
+//!
+//! Bytes collect until a 0x00 delimiter. Then:
+//!
+//! | frame | answer |
+//! |---|---|
+//! | empty (two delimiters) | none: an idle line or a resync |
+//! | longer than [`MAX_FRAME`] | `Error(Frame(Oversized))`, seq 0, the bytes dropped |
+//! | not COBS, short, bad CRC | `Error(Frame(..))`, seq 0 |
+//! | CRC good, unknown kind or undecodable | `Error(Frame(..))` with the request's seq |
+//! | a request | the device's response |
+
+use crate::device::{Clock, Device};
+use deltaz_shared::protocol::{
+    decode_request, encode_frame, ErrorCode, Response, ResponseBody, WireError, MAX_FRAME,
+};
+use embedded_io::{Read, Write};
+use embedded_storage::nor_flash::NorFlash;
+
+/// A device behind its framing.
+pub struct Server<F, C> {
+    device: Device<F, C>,
+    rx: [u8; MAX_FRAME],
+    rx_len: usize,
+    overflow: bool,
+    tx: [u8; MAX_FRAME],
+}
+
+impl<F: NorFlash, C: Clock> Server<F, C> {
+    /// Serve `device`.
+    pub fn new(device: Device<F, C>) -> Self {
+        Self {
+            device,
+            rx: [0; MAX_FRAME],
+            rx_len: 0,
+            overflow: false,
+            tx: [0; MAX_FRAME],
+        }
+    }
+
+    /// The device.
+    pub fn device(&self) -> &Device<F, C> {
+        &self.device
+    }
+
+    /// Give the device back.
+    pub fn into_device(self) -> Device<F, C> {
+        self.device
+    }
+
+    /// Take one received byte; when it ends a frame, the encoded response to send.
+    pub fn push(&mut self, byte: u8) -> Option<&[u8]> {
+        if byte != 0 {
+            match self.rx.get_mut(self.rx_len) {
+                Some(slot) => {
+                    *slot = byte;
+                    self.rx_len += 1;
+                }
+                None => self.overflow = true,
+            }
+            return None;
+        }
+        let len = core::mem::take(&mut self.rx_len);
+        let response = if core::mem::take(&mut self.overflow) {
+            Err((0, WireError::Oversized))
+        } else if len == 0 {
+            return None;
+        } else {
+            decode_request(&mut self.rx[..len])
+        };
+        let response = match response {
+            Ok(request) => self.device.handle(request),
+            Err((seq, error)) => {
+                self.device.count_bad_frame();
+                Response {
+                    seq,
+                    body: ResponseBody::Error(ErrorCode::Frame(error)),
+                }
+            }
+        };
+        // A response always fits MAX_FRAME (see its definition); should one not, say so.
+        let len = match encode_frame(&response, &mut self.tx) {
+            Ok(frame) => frame.len(),
+            Err(e) => {
+                let error = Response {
+                    seq: response.seq,
+                    body: ResponseBody::Error(ErrorCode::Frame(e)),
+                };
+                encode_frame(&error, &mut self.tx).map_or(0, |f| f.len())
+            }
+        };
+        Some(&self.tx[..len])
+    }
+
+    /// Serve `io` until a `Reset` was answered (the board then restarts) or the port fails.
+    pub fn serve<IO: Read + Write>(&mut self, io: &mut IO) -> Result<(), IO::Error> {
+        let mut buf = [0u8; 64];
+        loop {
+            let n = io.read(&mut buf)?;
+            for &byte in &buf[..n] {
+                if let Some(frame) = self.push(byte) {
+                    io.write_all(frame)?;
+                    io.flush()?;
+                }
+            }
+            if self.device.reset_requested() {
+                return Ok(());
+            }
+        }
+    }
+}

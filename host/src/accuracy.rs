@@ -1,0 +1,241 @@
+//! Accuracy on simulated rigs: the experiments of section 6.2 (and beyond) run end to end on a
+//! [`Simulation`]: resection of each plate image (step 4), projector calibration (steps 5-7),
+//! reconstruction, and the errors against the paper's reference or against the truth, each beside
+//! the image-noise floor (first-order propagation of the image noise through the intersection).
+//!
+//! All error figures are per axis `sqrt(Σ e² / (n − 1))`, the form of Table 7's "MSE" row, taken
+//! about zero so that a bias counts. Against the truth they are in the camera system (x right,
+//! y up, z backwards), which does not depend on how well the 1st image was resected.
+
+use crate::compare::{assess, sample_std_about};
+use crate::projector_calibration::{
+    calibrate_projector, plane_points, plate_images, Model, PlateImage, ProjectorCalibration,
+};
+use crate::reconstruct::{calibration_covariance, covariance, reconstruct};
+use crate::simulate::Simulation;
+use crate::system::{RayCovariances, SystemContent, SystemRig};
+use anyhow::{Context, Result};
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
+use deltaz_shared::collinearity::ExteriorOrientation;
+use deltaz_shared::rig::Method;
+use nalgebra::{Matrix3, Vector3};
+use serde::Serialize;
+
+/// The Table 4 rays "01".."23" as ids (row·100 + col).
+pub const TABLE4_IDS: [u16; 9] = [1, 2, 3, 101, 102, 103, 201, 202, 203];
+
+/// Step 4 for every plate image: the camera pose in the plate frame, by space resection on the
+/// plate's control points with the given inner orientation.
+pub fn plate_poses(
+    sim: &Simulation,
+    grid: &PixelGrid<f64>,
+    inner: &InnerOrientation<f64>,
+) -> Result<Vec<(String, ExteriorOrientation<f64>)>> {
+    crate::resection::resect_images(
+        std::path::Path::new("plate_obs.csv"),
+        grid,
+        inner,
+        &sim.plate_obs,
+        &sim.plate_control,
+    )
+    .map(|r| {
+        r.into_iter()
+            .map(|(image, res)| (image, res.exterior))
+            .collect()
+    })
+}
+
+/// A calibrated system and what went into it.
+#[derive(Debug, Clone)]
+pub struct Calibrated {
+    /// The plate images (resected) of the whole simulation.
+    pub images: Vec<PlateImage>,
+    /// How many of them (the first ones) the calibration used.
+    pub used: usize,
+    /// The projector.
+    pub projector: ProjectorCalibration,
+    /// system.json content.
+    pub content: SystemContent,
+    /// The rig.
+    pub rig: SystemRig,
+}
+
+/// Resects the plate images and calibrates the projector on the first `used` images, keeping
+/// only the rays in `ids` (all when `None`).
+pub fn calibrate_simulation(
+    sim: &Simulation,
+    inner: &InnerOrientation<f64>,
+    model: Model,
+    ids: Option<&[u16]>,
+    used: usize,
+) -> Result<Calibrated> {
+    let grid = sim.camera_init.grid();
+    let poses = plate_poses(sim, &grid, inner)?;
+    let mut images = plate_images(&sim.plate_obs, &poses)?;
+    if let Some(ids) = ids {
+        for image in &mut images {
+            image.dots.retain(|d| ids.contains(&d.id));
+        }
+    }
+    let sigma_px = sim.truth.noise.image_sigma_px;
+    let projector = calibrate_projector(&grid, inner, &images[..used], model, sigma_px)?;
+    let content = SystemContent::new(grid, *inner, images[0].exterior, &projector);
+    let rig = content.rig()?;
+    Ok(Calibrated {
+        images,
+        used,
+        projector,
+        content,
+        rig,
+    })
+}
+
+/// Per-axis figures of one experiment (mm).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Figures {
+    /// sqrt(Σ e² / (n − 1)) per axis, no similarity fit.
+    pub error: Vector3<f64>,
+    /// The image-noise floor: RMS of the propagated σ per axis.
+    pub floor: Vector3<f64>,
+    /// Points compared.
+    pub points: usize,
+}
+
+/// Section 6.2.3: the dots of calibration image `image` reconstructed and compared with their
+/// plate coordinates from eq. (10) (the same image measurements), in the rig frame. Returns the
+/// figures with no fit and the "MSE" after Table 6's similarity.
+/// `sigma_px` is the image noise the floor is propagated from.
+pub fn paper_experiment(
+    cal: &Calibrated,
+    image: usize,
+    method: Method,
+    sigma_px: f64,
+) -> Result<(Figures, Vector3<f64>)> {
+    let grid = *cal.rig.grid();
+    let inner = *cal.rig.inner();
+    let by_ray = plane_points(&grid, &inner, &cal.images[..cal.used], sigma_px)?;
+    let dots = &cal.images[image].dots;
+    let points = reconstruct(&cal.rig, dots, method, None, None)?;
+    let mut reconstructed = Vec::new();
+    let mut reference = Vec::new();
+    let mut floors = Vec::new();
+    for (dot, p) in dots.iter().zip(&points) {
+        let on_plate = by_ray[&dot.id]
+            .iter()
+            .find(|pp| pp.plane == image)
+            .context("the image's dot is missing from the plane points")?;
+        reconstructed.push(p.point);
+        reference.push(on_plate.point);
+        floors.push(covariance(&cal.rig, dot, method, sigma_px)?.diagonal());
+    }
+    let errors: Vec<_> = reconstructed
+        .iter()
+        .zip(&reference)
+        .map(|(a, b)| a - b)
+        .collect();
+    let fitted = assess(&reconstructed, &reference)?;
+    Ok((
+        Figures {
+            error: sample_std_about(&errors, Vector3::zeros()),
+            floor: rms_sigma(&floors),
+            points: errors.len(),
+        },
+        fitted.mse,
+    ))
+}
+
+/// Per-point results against the truth (camera system).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthComparison {
+    /// Error vector (camera system, mm).
+    pub error: Vector3<f64>,
+    /// Propagated σ per camera axis from image noise alone: the floor (mm).
+    pub floor: Vector3<f64>,
+    /// Propagated σ per camera axis from image noise and calibration (mm).
+    pub sigma: Vector3<f64>,
+    /// The true point (camera system, mm).
+    pub truth: Vector3<f64>,
+}
+
+/// The dots of plate image `image` reconstructed and compared with the true points where the
+/// true rays meet the true plate, in the camera system; σ from the simulation's image noise,
+/// alone (the floor) and with the calibration's share.
+pub fn against_truth(
+    sim: &Simulation,
+    cal: &Calibrated,
+    image: usize,
+    method: Method,
+) -> Result<Vec<TruthComparison>> {
+    let sigma_px = sim.truth.noise.image_sigma_px;
+    let pose: ExteriorOrientation<f64> = sim.truth.plate.images[image].camera.into();
+    let r_k = pose.r_cam_world();
+    // The plate Z = 0 in the camera system: n·x = d.
+    let normal: Vector3<f64> = r_k.column(2).into();
+    let d = -pose.centre.z;
+    let projector = &sim.truth.projector;
+    let centre = Vector3::from(projector.centre_camera);
+    let r = *cal.rig.r_cam_world();
+    let dots = &cal.images[image].dots;
+    let points = reconstruct(&cal.rig, dots, method, None, None)?;
+    let lines: RayCovariances = cal
+        .projector
+        .rays
+        .iter()
+        .map(|r| (r.id, r.line_cov))
+        .collect();
+    dots.iter()
+        .zip(&points)
+        .map(|(dot, p)| {
+            let ray = projector
+                .rays
+                .iter()
+                .find(|t| t.id == dot.id)
+                .with_context(|| format!("ray {} not in the truth", dot.id))?;
+            let start = centre + Vector3::from(ray.offset_camera);
+            let dir = Vector3::from(ray.camera);
+            let truth = start + dir * ((d - normal.dot(&start)) / normal.dot(&dir));
+            let cam = r * (p.point - cal.rig.camera_centre());
+            let image_cov = covariance(&cal.rig, dot, method, sigma_px)?;
+            let line = lines.get(&dot.id).context("ray without covariance")?;
+            let cal_cov = calibration_covariance(&cal.rig, dot, method, p.point, line)?;
+            Ok(TruthComparison {
+                error: cam - truth,
+                floor: camera_axes(&r, &image_cov),
+                sigma: camera_axes(&r, &(image_cov + cal_cov)),
+                truth,
+            })
+        })
+        .collect()
+}
+
+/// Figures of a truth comparison; with the honesty ratio RMS(e/σ) over all axes and points.
+pub fn truth_figures(cmp: &[TruthComparison]) -> (Figures, f64) {
+    let errors: Vec<_> = cmp.iter().map(|c| c.error).collect();
+    let sigmas: Vec<_> = cmp
+        .iter()
+        .map(|c| c.floor.component_mul(&c.floor))
+        .collect();
+    let ratios: f64 = cmp
+        .iter()
+        .map(|c| c.error.component_div(&c.sigma).norm_squared())
+        .sum();
+    (
+        Figures {
+            error: sample_std_about(&errors, Vector3::zeros()),
+            floor: rms_sigma(&sigmas),
+            points: cmp.len(),
+        },
+        (ratios / (3 * cmp.len().max(1)) as f64).sqrt(),
+    )
+}
+
+/// σ per camera axis of a rig-frame covariance: sqrt(diag(R Σ Rᵀ)).
+fn camera_axes(r: &Matrix3<f64>, cov: &Matrix3<f64>) -> Vector3<f64> {
+    (r * cov * r.transpose()).diagonal().map(f64::sqrt)
+}
+
+/// RMS of σ from per-point variances.
+fn rms_sigma(variances: &[Vector3<f64>]) -> Vector3<f64> {
+    let n = variances.len().max(1) as f64;
+    (variances.iter().sum::<Vector3<f64>>() / n).map(f64::sqrt)
+}

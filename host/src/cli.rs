@@ -1,0 +1,196 @@
+//! The bodies of the `compare`, `reconstruct`, `calibrate-projector` and `demo` subcommands
+//! (argument parsing stays in `main.rs`).
+
+use crate::compare::{assess, match_points};
+use crate::io::atomic::write_atomic;
+use crate::io::camera_file::read_camera;
+use crate::io::control::read_control;
+use crate::io::observations::{read_observations, Observation, PointKind};
+use crate::ply::{write_ply, Encoding};
+use crate::projector_calibration::{
+    calibrate_projector as calibrate_projector_images, plate_images, DotObservation, Model,
+};
+use crate::reconstruct::reconstruct as reconstruct_points;
+use crate::resection::resect_images;
+use crate::system::SystemContent;
+use crate::system::SystemFile;
+use anyhow::{bail, Result};
+use deltaz_shared::rig::Method;
+use std::path::{Path, PathBuf};
+
+/// `--method` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MethodArg {
+    /// Eqs (8)-(9), X and Z only (the paper).
+    Paper,
+    /// Least-squares closest approach of the two rays.
+    Closest,
+}
+
+impl From<MethodArg> for Method {
+    fn from(m: MethodArg) -> Self {
+        match m {
+            MethodArg::Paper => Method::Paper,
+            MethodArg::Closest => Method::ClosestApproach,
+        }
+    }
+}
+
+/// `deltaz compare`.
+pub fn compare(reconstructed: &Path, reference: &Path, json: bool) -> Result<()> {
+    let read = |p: &Path| -> Result<Vec<(String, nalgebra::Vector3<f64>)>> {
+        Ok(read_control(p)?
+            .into_iter()
+            .map(|c| (c.point, c.xyz))
+            .collect())
+    };
+    let matched = match_points(&read(reconstructed)?, &read(reference)?)?;
+    let a = assess(&matched.reconstructed, &matched.reference)?;
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&a.to_json(&matched.labels))?
+        );
+    } else {
+        print!("{}", a.to_text(&matched.labels));
+    }
+    Ok(())
+}
+
+/// Arguments of `deltaz reconstruct`.
+#[derive(Debug, Clone)]
+pub struct ReconstructArgs {
+    /// system.json.
+    pub system: PathBuf,
+    /// Dot observations CSV.
+    pub obs: PathBuf,
+    /// PLY output.
+    pub out: PathBuf,
+    /// Optional CSV output.
+    pub csv: Option<PathBuf>,
+    /// ASCII PLY.
+    pub ascii: bool,
+    /// Image noise for σ.
+    pub sigma_px: Option<f64>,
+    /// Intersection method.
+    pub method: MethodArg,
+}
+
+/// The dot rows of an observations file (all rows when none is marked `dot`), each label a ray
+/// id; a label that is not one names its line.
+pub fn dot_observations(path: &Path, obs: &[Observation]) -> Result<Vec<(String, DotObservation)>> {
+    let any_dot = obs.iter().any(|o| o.kind == PointKind::Dot);
+    obs.iter()
+        .filter(|o| !any_dot || o.kind == PointKind::Dot)
+        .map(|o| {
+            let Ok(id) = o.point.parse::<u16>() else {
+                bail!(
+                    "{}:{}: point {:?} is not a ray id",
+                    path.display(),
+                    o.line,
+                    o.point
+                );
+            };
+            Ok((
+                o.image.clone(),
+                DotObservation {
+                    id,
+                    col: o.col,
+                    row: o.row,
+                },
+            ))
+        })
+        .collect()
+}
+
+/// `deltaz reconstruct`: everything is computed before anything is written.
+pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
+    let (system, rig) = SystemFile::load(&args.system)?;
+    let calibration = system.line_covariances();
+    let obs = read_observations(&args.obs)?;
+    let dots = dot_observations(&args.obs, &obs)?;
+    let plain: Vec<DotObservation> = dots.iter().map(|(_, d)| *d).collect();
+    let points = reconstruct_points(
+        &rig,
+        &plain,
+        args.method.into(),
+        args.sigma_px,
+        Some(&calibration),
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
+    let csv = args.csv.as_ref().map(|_| {
+        let mut text = String::from("image,point,X,Y,Z,miss");
+        if args.sigma_px.is_some() {
+            text += ",sigma_X,sigma_Y,sigma_Z";
+        }
+        text.push('\n');
+        for ((image, _), p) in dots.iter().zip(&points) {
+            text += &format!(
+                "{image},{},{},{},{},{}",
+                p.id, p.point.x, p.point.y, p.point.z, p.miss
+            );
+            if let Some(s) = p.sigma {
+                text += &format!(",{},{},{}", s.x, s.y, s.z);
+            }
+            text.push('\n');
+        }
+        text
+    });
+    let encoding = if args.ascii {
+        Encoding::Ascii
+    } else {
+        Encoding::BinaryLittleEndian
+    };
+    write_ply(&args.out, &points, encoding)?;
+    if let (Some(path), Some(text)) = (&args.csv, csv) {
+        write_atomic(path, text.as_bytes())?;
+    }
+    println!("{} points -> {}", points.len(), args.out.display());
+    Ok(())
+}
+
+/// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
+/// system.json written atomically only when everything succeeded.
+pub fn calibrate_projector(
+    camera: &Path,
+    control: &Path,
+    obs: &Path,
+    out: &Path,
+    model: Model,
+    image_sigma_px: f64,
+) -> Result<()> {
+    let camera = read_camera(camera)?;
+    let (grid, inner) = (camera.grid(), camera.inner());
+    let control_points = read_control(control)?;
+    let observations = read_observations(obs)?;
+    let poses: Vec<_> = resect_images(obs, &grid, &inner, &observations, &control_points)?
+        .into_iter()
+        .map(|(image, r)| (image, r.exterior))
+        .collect();
+    let images = plate_images(&observations, &poses)
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
+    let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
+    let content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+    content.rig()?;
+    let file = SystemFile::new(content)?;
+    write_atomic(out, file.to_json()?.as_bytes())?;
+    let worst = projector
+        .rays
+        .iter()
+        .max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
+    println!(
+        "{:?} model: centre {:.3?} mm (σ {:.3?}), {} rays{}; fingerprint {} -> {}",
+        model,
+        projector.centre.as_slice(),
+        projector.centre_sigma.as_slice(),
+        projector.rays.len(),
+        worst.map_or(String::new(), |w| format!(
+            ", worst ray {} misses its plane points by {:.3} mm RMS",
+            w.id, w.miss_rms
+        )),
+        file.fingerprint,
+        out.display()
+    );
+    Ok(())
+}

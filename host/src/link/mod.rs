@@ -1,0 +1,28 @@
+//! The link to the device: a typed [`Device`] client over a byte [`Transport`].
+//!
+//! Three transports carry the same frames: [`InProcess`] (the firmware's own logic in this
+//! process, the default without a port), [`Serial`] (a serial port) and [`Qemu`] (the firmware
+//! binary in `qemu-system-arm`, on a pty).
+
+mod calibration;
+mod client;
+mod in_process;
+mod qemu;
+mod serial;
+
+pub use calibration::calibration_blob;
+pub use client::{Device, DeviceError, WorldPoint, DEFAULT_TIMEOUT};
+pub use in_process::InProcess;
+pub use qemu::Qemu;
+pub use serial::{list_ports, Serial};
+
+use std::io;
+use std::time::Duration;
+
+/// Bytes to and from a device.
+pub trait Transport {
+    /// Send all of `bytes`.
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()>;
+    /// Read what has arrived, waiting up to `timeout` for the first byte; `Ok(0)` on timeout.
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize>;
+}

@@ -1,0 +1,125 @@
+//! The calibration blob the host uploads: `postcard(CalibrationHeader) ‖ postcard(WireRay)×rays`.
+//!
+//! Everything is already centred on the camera (see [`crate::rig`]): the projector centre is
+//! X_p − X0, computed in f64 on the host, so the device's f32 arithmetic works on small
+//! differences. R is sent as a matrix (no trigonometry on the device) and the rays are sorted by
+//! id with unit directions, ready for [`crate::projector::Projector::new`].
+
+use super::frame::WireError;
+use crate::camera::{InnerOrientation, PixelGrid};
+use crate::rig::Method;
+use serde::{Deserialize, Serialize};
+
+/// The blob format written in [`CalibrationHeader::format`].
+pub const CALIBRATION_FORMAT: u16 = 1;
+
+/// How the device intersects the rays (see [`Method`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum IntersectionMethod {
+    /// Eqs (8)-(9).
+    Paper,
+    /// Least-squares closest approach.
+    ClosestApproach,
+}
+
+impl From<IntersectionMethod> for Method {
+    fn from(m: IntersectionMethod) -> Self {
+        match m {
+            IntersectionMethod::Paper => Method::Paper,
+            IntersectionMethod::ClosestApproach => Method::ClosestApproach,
+        }
+    }
+}
+
+impl From<Method> for IntersectionMethod {
+    fn from(m: Method) -> Self {
+        match m {
+            Method::Paper => IntersectionMethod::Paper,
+            Method::ClosestApproach => IntersectionMethod::ClosestApproach,
+        }
+    }
+}
+
+/// Everything but the rays.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationHeader {
+    /// [`CALIBRATION_FORMAT`].
+    pub format: u16,
+    /// The host's fingerprint of the calibration (from its system file).
+    pub fingerprint: u64,
+    /// The intersection the device computes.
+    pub method: IntersectionMethod,
+    /// The camera's raster.
+    pub grid: PixelGrid<f32>,
+    /// The camera's inner orientation.
+    pub inner: InnerOrientation<f32>,
+    /// R of eq. (2), world → camera, row-major.
+    pub r_cam_world: [f32; 9],
+    /// The camera centre X0 (world, mm), kept in f64 for the host to add back.
+    pub camera_centre: [f64; 3],
+    /// The projector centre relative to the camera centre, X_p − X0 (mm).
+    pub projector_centre: [f32; 3],
+    /// The number of rays that follow.
+    pub rays: u16,
+}
+
+/// One projector ray on the wire.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WireRay {
+    /// The ray id.
+    pub id: u16,
+    /// Unit direction (l, m, n).
+    pub direction: [f32; 3],
+    /// The non-central model's offset from the centre (mm), `None` for a central ray.
+    pub offset: Option<[f32; 3]>,
+}
+
+/// Write the blob into `buf`; returns its length. `rays` must yield `header.rays` rays.
+pub fn encode_calibration(
+    header: &CalibrationHeader,
+    rays: impl IntoIterator<Item = WireRay>,
+    buf: &mut [u8],
+) -> Result<usize, WireError> {
+    let mut len = postcard::to_slice(header, buf)
+        .map_err(|_| WireError::BufferFull)?
+        .len();
+    let mut count = 0usize;
+    for ray in rays {
+        let rest = buf.get_mut(len..).ok_or(WireError::BufferFull)?;
+        len += postcard::to_slice(&ray, rest)
+            .map_err(|_| WireError::BufferFull)?
+            .len();
+        count += 1;
+    }
+    if count != usize::from(header.rays) {
+        return Err(WireError::Malformed);
+    }
+    Ok(len)
+}
+
+/// Read a blob: returns the header after handing every ray, in order, to `take_ray` (which may
+/// refuse one, for example when its table is full). Fails on another format, a short or long
+/// blob, or a refused ray.
+pub fn decode_calibration(
+    blob: &[u8],
+    mut take_ray: impl FnMut(WireRay) -> bool,
+) -> Result<CalibrationHeader, WireError> {
+    let (header, mut rest) =
+        postcard::take_from_bytes::<CalibrationHeader>(blob).map_err(|_| WireError::Malformed)?;
+    if header.format != CALIBRATION_FORMAT {
+        return Err(WireError::UnknownMessage);
+    }
+    for _ in 0..header.rays {
+        let (ray, tail) =
+            postcard::take_from_bytes::<WireRay>(rest).map_err(|_| WireError::Malformed)?;
+        if !take_ray(ray) {
+            return Err(WireError::Malformed);
+        }
+        rest = tail;
+    }
+    if rest.is_empty() {
+        Ok(header)
+    } else {
+        Err(WireError::Malformed)
+    }
+}

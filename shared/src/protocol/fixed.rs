@@ -1,0 +1,264 @@
+//! The compact fixed-point forms of a centroid (6 bytes) and of a computed point (10 bytes).
+
+use crate::Error;
+use nalgebra::{RealField, Vector3};
+use serde::{de::Error as _, Deserialize, Deserializer, Serialize, Serializer};
+
+/// Fraction bits of the centroid fixed point for a `width` × `height` sensor: the most (up to 8)
+/// such that (max(width, height) + 1) · 2^bits still fits a u16. 6 bits (1/64 pixel) for the
+/// paper's 768 × 512 camera.
+pub fn centroid_fraction_bits(width: u32, height: u32) -> u8 {
+    let extent = u64::from(width.max(height)) + 1;
+    (0..=8u8)
+        .rev()
+        .find(|&bits| extent << bits <= u64::from(u16::MAX))
+        .unwrap_or(0)
+}
+
+/// One observed dot: the projector ray id and its sub-pixel position. On the wire 6 bytes: id,
+/// col, row, each u16 little endian; col and row hold (pixel + 0.5) · 2^bits rounded, `bits` from
+/// [`centroid_fraction_bits`] for the calibrated sensor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Centroid {
+    /// The ray id (row·100 + col of the pattern).
+    pub id: u16,
+    /// Column in fixed point.
+    pub col: u16,
+    /// Row in fixed point.
+    pub row: u16,
+}
+
+impl Centroid {
+    /// The centroid of a pixel position (col, row), or `None` when it is NaN or off the range
+    /// of the fixed point (−0.5 .. 65535/2^bits − 0.5).
+    pub fn from_pixel(id: u16, col: f64, row: f64, bits: u8) -> Option<Self> {
+        let scale = f64::from(1u32 << bits);
+        let fixed = |v: f64| {
+            let raw = libm::round((v + 0.5) * scale);
+            (0.0..=f64::from(u16::MAX))
+                .contains(&raw)
+                .then_some(raw as u16)
+        };
+        Some(Self {
+            id,
+            col: fixed(col)?,
+            row: fixed(row)?,
+        })
+    }
+
+    /// The pixel position (col, row) the fixed point stands for, exact in f32 and f64.
+    pub fn pixel<T: RealField + Copy>(&self, bits: u8) -> (T, T) {
+        let scale: T = nalgebra::convert(f64::from(1u32 << bits));
+        let half: T = nalgebra::convert(0.5);
+        let v = |raw: u16| -> T { nalgebra::convert::<f64, T>(f64::from(raw)) / scale - half };
+        (v(self.col), v(self.row))
+    }
+
+    fn to_bytes(self) -> [u8; 6] {
+        let [a, b] = self.id.to_le_bytes();
+        let [c, d] = self.col.to_le_bytes();
+        let [e, f] = self.row.to_le_bytes();
+        [a, b, c, d, e, f]
+    }
+}
+
+impl Serialize for Centroid {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        self.to_bytes().serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for Centroid {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let [a, b, c, e, f, g] = <[u8; 6]>::deserialize(d)?;
+        Ok(Self {
+            id: u16::from_le_bytes([a, b]),
+            col: u16::from_le_bytes([c, e]),
+            row: u16::from_le_bytes([f, g]),
+        })
+    }
+}
+
+/// Why a centroid has no point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PointStatus {
+    /// The calibration has no ray with this id.
+    UnknownRay,
+    /// The camera and projector rays are (nearly) parallel.
+    Degenerate,
+    /// The point lies farther than 2048 mm from the camera centre along an axis.
+    OutOfRange,
+}
+
+/// Units per millimetre of a point coordinate: 2¹² (0.244 µm).
+pub const POINT_UNITS_PER_MM: f64 = 4096.0;
+/// Units per millimetre of the miss distance: 2⁸ (3.9 µm).
+pub const MISS_UNITS_PER_MM: f64 = 256.0;
+/// The largest miss code; it also stands for every larger miss (≥ 0.93 mm).
+pub const MISS_SATURATED: u8 = 0xEF;
+const LIMIT: f64 = 8_388_607.0; // 2^23 − 1
+const UNKNOWN_RAY: u8 = 0xF0;
+const DEGENERATE: u8 = 0xF1;
+const OUT_OF_RANGE: u8 = 0xF2;
+
+/// The device's answer for one centroid. On the wire 10 bytes: x, y, z as 24-bit signed little
+/// endian in units of 2⁻¹² mm *relative to the camera centre* (world axes), then one byte that is
+/// the miss distance in units of 2⁻⁸ mm (0 ..= 0xEF, saturating) or a status (0xF0 unknown ray,
+/// 0xF1 degenerate, 0xF2 out of range; the coordinates are then zero).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PointResult {
+    /// A point.
+    Point {
+        /// Coordinates relative to the camera centre, units of 2⁻¹² mm, each within ±(2²³ − 1).
+        xyz: [i32; 3],
+        /// Miss distance code (units of 2⁻⁸ mm, saturating at [`MISS_SATURATED`]).
+        miss: u8,
+    },
+    /// No point.
+    Failed(PointStatus),
+}
+
+impl PointResult {
+    /// Quantise a camera-centred point and its miss distance (mm).
+    pub fn from_camera_centred<T: RealField + Copy>(point: &Vector3<T>, miss: T) -> Self {
+        let mut xyz = [0i32; 3];
+        for (out, c) in xyz.iter_mut().zip(point.iter()) {
+            let units = c.to_subset().unwrap_or(f64::NAN) * POINT_UNITS_PER_MM;
+            // NaN fails the range test.
+            if !(-LIMIT..=LIMIT).contains(&units) {
+                return Self::Failed(PointStatus::OutOfRange);
+            }
+            *out = libm::round(units) as i32;
+        }
+        let miss = miss.to_subset().unwrap_or(f64::INFINITY) * MISS_UNITS_PER_MM;
+        let miss = if miss < f64::from(MISS_SATURATED) {
+            libm::round(miss) as u8
+        } else {
+            MISS_SATURATED
+        };
+        Self::Point { xyz, miss }
+    }
+
+    /// The result of a reconstruction: a point or the status of its error.
+    pub fn from_error(error: Error) -> Self {
+        Self::Failed(match error {
+            Error::UnknownRay(_) => PointStatus::UnknownRay,
+            _ => PointStatus::Degenerate,
+        })
+    }
+
+    /// The camera-centred point in mm, if there is one.
+    pub fn camera_centred_mm(&self) -> Option<Vector3<f64>> {
+        match self {
+            Self::Point { xyz, .. } => Some(Vector3::from(
+                xyz.map(|u| f64::from(u) / POINT_UNITS_PER_MM),
+            )),
+            Self::Failed(_) => None,
+        }
+    }
+
+    /// The miss distance in mm (a lower bound when saturated), if there is a point.
+    pub fn miss_mm(&self) -> Option<f64> {
+        match self {
+            Self::Point { miss, .. } => Some(f64::from(*miss) / MISS_UNITS_PER_MM),
+            Self::Failed(_) => None,
+        }
+    }
+
+    fn to_bytes(self) -> [u8; 10] {
+        let mut bytes = [0u8; 10];
+        match self {
+            Self::Point { xyz, miss } => {
+                for (chunk, v) in bytes.chunks_exact_mut(3).zip(xyz) {
+                    chunk.copy_from_slice(&v.to_le_bytes()[..3]);
+                }
+                bytes[9] = miss;
+            }
+            Self::Failed(status) => {
+                bytes[9] = match status {
+                    PointStatus::UnknownRay => UNKNOWN_RAY,
+                    PointStatus::Degenerate => DEGENERATE,
+                    PointStatus::OutOfRange => OUT_OF_RANGE,
+                }
+            }
+        }
+        bytes
+    }
+
+    fn from_bytes(bytes: [u8; 10]) -> Option<Self> {
+        let i24 = |b: &[u8]| i32::from_le_bytes([0, b[0], b[1], b[2]]) >> 8;
+        let status = |s| Some(Self::Failed(s));
+        match bytes[9] {
+            miss @ 0..=MISS_SATURATED => Some(Self::Point {
+                xyz: [i24(&bytes[0..3]), i24(&bytes[3..6]), i24(&bytes[6..9])],
+                miss,
+            }),
+            UNKNOWN_RAY => status(PointStatus::UnknownRay),
+            DEGENERATE => status(PointStatus::Degenerate),
+            OUT_OF_RANGE => status(PointStatus::OutOfRange),
+            _ => None,
+        }
+    }
+}
+
+impl Serialize for PointResult {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        self.to_bytes().serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for PointResult {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        Self::from_bytes(<[u8; 10]>::deserialize(d)?)
+            .ok_or_else(|| D::Error::custom("unknown point status"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fraction_bits_fit_the_sensor() {
+        assert_eq!(centroid_fraction_bits(768, 512), 6);
+        assert_eq!(centroid_fraction_bits(4096, 3000), 3);
+        assert_eq!(centroid_fraction_bits(200, 100), 8);
+        // Corner pixel centres and edges survive the round trip exactly at the grid's scale.
+        let bits = centroid_fraction_bits(768, 512);
+        let c = Centroid::from_pixel(7, 767.5, -0.5, bits).unwrap();
+        assert_eq!(c.pixel::<f64>(bits), (767.5, -0.5));
+        assert_eq!(Centroid::from_pixel(7, -0.6, 0.0, bits), None);
+        assert_eq!(Centroid::from_pixel(7, f64::NAN, 0.0, bits), None);
+        let c = Centroid::from_pixel(1, 100.123, 200.9, bits).unwrap();
+        let (col, row) = c.pixel::<f64>(bits);
+        assert!((col - 100.123).abs() <= 1.0 / 128.0 && (row - 200.9).abs() <= 1.0 / 128.0);
+        assert_eq!(c.pixel::<f32>(bits), (col as f32, row as f32));
+    }
+
+    #[test]
+    fn point_quantisation_and_bytes() {
+        let p = PointResult::from_camera_centred(&Vector3::new(-1.0, 2047.0, -0.5 / 4096.0), 0.01);
+        assert_eq!(
+            p,
+            PointResult::Point {
+                xyz: [-4096, 2047 * 4096, -1],
+                miss: 3
+            }
+        );
+        assert_eq!(
+            p.to_bytes(),
+            [0x00, 0xF0, 0xFF, 0x00, 0xF0, 0x7F, 0xFF, 0xFF, 0xFF, 0x03]
+        );
+        assert_eq!(PointResult::from_bytes(p.to_bytes()), Some(p));
+        let far = PointResult::from_camera_centred(&Vector3::new(0.0, 2048.0, 0.0), 0.0);
+        assert_eq!(far, PointResult::Failed(PointStatus::OutOfRange));
+        let nan = PointResult::from_camera_centred(&Vector3::new(f32::NAN, 0.0, 0.0), 0.0);
+        assert_eq!(nan, PointResult::Failed(PointStatus::OutOfRange));
+        let wide = PointResult::from_camera_centred(&Vector3::new(1.0, 1.0, 1.0), 5.0);
+        assert_eq!(wide.miss_mm(), Some(f64::from(MISS_SATURATED) / 256.0));
+        assert_eq!(
+            PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF5]),
+            None
+        );
+    }
+}

@@ -1,0 +1,95 @@
+//! End to end over a serial line: QEMU runs the real firmware binary (mps2-an386) with UART0 on a
+//! pty; the host uploads the 440-ray calibration, reads the fingerprint back, streams more than
+//! 10,000 points and checks every one against its own f64 result; then resets the device and
+//! checks that the calibration survived.
+
+use deltaz_host::link::{Device, Qemu};
+use deltaz_shared::protocol::Centroid;
+use deltaz_shared::rig::Method;
+use deltaz_tests::firmware_elf;
+use deltaz_tests::pattern::{pattern_rig, plate_centroids};
+use std::time::{Duration, Instant};
+
+const FINGERPRINT: u64 = 0x5EED_0000_0440_0001;
+
+#[test]
+fn qemu_upload_stream_reset() {
+    let rig = pattern_rig();
+    let qemu = Qemu::spawn(&firmware_elf()).expect("start QEMU");
+    let mut device = Device::new(qemu).with_timeout(Duration::from_secs(20));
+
+    let info = device.info().expect("the device answers Info");
+    assert_eq!(info.calibration, None, "a fresh QEMU holds no calibration");
+    let summary = device.upload(&rig, FINGERPRINT).expect("upload");
+    assert_eq!((summary.fingerprint, summary.rays), (FINGERPRINT, 440));
+
+    // Frames: the three plates Z = 0, 100, 200, each at 9 sub-pixel shifts: 27 frames.
+    let shifts = [-0.37, 0.0, 0.29];
+    let mut frames = Vec::new();
+    for z in [0.0, 100.0, 200.0] {
+        for a in shifts {
+            for b in shifts {
+                frames.push(plate_centroids(&rig, z, (a, b)));
+            }
+        }
+    }
+    let total: usize = frames.iter().map(Vec::len).sum();
+    assert!(total >= 10_000, "{total} points");
+
+    let bits = summary.centroid_bits;
+    let mut worst = 0.0_f64;
+    let mut streamed = Duration::ZERO;
+    let mut ticks_440 = None;
+    for frame in &frames {
+        let start = Instant::now();
+        let points = device.compute(frame).expect("compute");
+        streamed += start.elapsed();
+        for (got, host) in points.iter().zip(host_points(&rig, frame, bits)) {
+            let got = got.expect("every dot has a point");
+            worst = worst.max((got.point - host).norm());
+        }
+        if frame.len() == 440 && ticks_440.is_none() {
+            ticks_440 = Some(device.stats().expect("stats").last_compute_ticks);
+        }
+    }
+    let rate = total as f64 / streamed.as_secs_f64();
+    println!("{total} points over the QEMU pty: worst |device − host f64| = {:.3} µm, {rate:.0} points/s", worst * 1e3);
+    assert!(worst < 1e-3, "worst deviation {worst} mm");
+    let ticks = ticks_440.expect("a frame of all 440 dots");
+    println!(
+        "440-point compute: {ticks} SysTick ticks = {} instructions per point (icount shift=0, 40 per tick)",
+        ticks * 40 / 440
+    );
+    assert!(ticks > 0, "SysTick counts under -icount");
+
+    // A reset (SYSRESETREQ) keeps the calibration region: same fingerprint, same results.
+    device.reset().expect("reset");
+    let after = device
+        .expect_calibration(FINGERPRINT)
+        .expect("calibration kept");
+    assert_eq!(after.generation, summary.generation);
+    let again = device.compute(&frames[0]).expect("compute after reset");
+    let before = host_points(&rig, &frames[0], bits);
+    for (got, host) in again.iter().zip(before) {
+        assert!((got.unwrap().point - host).norm() < 1e-3);
+    }
+}
+
+/// The host's f64 points for the centroids as the device receives them (fixed point).
+fn host_points(
+    rig: &deltaz_shared::rig::Rig<f64, Vec<deltaz_shared::projector::ProjectorRay<f64>>>,
+    frame: &[(u16, f64, f64)],
+    bits: u8,
+) -> Vec<nalgebra::Vector3<f64>> {
+    frame
+        .iter()
+        .map(|&(id, col, row)| {
+            let (qc, qr) = Centroid::from_pixel(id, col, row, bits)
+                .unwrap()
+                .pixel::<f64>(bits);
+            rig.reconstruct(id, qc, qr, Method::ClosestApproach)
+                .unwrap()
+                .point
+        })
+        .collect()
+}
