@@ -181,7 +181,13 @@ fn image_files_and_errors() {
             m.noise_sigma
         );
     }
-    let obs = measure_images(&[png16.clone(), tiff.clone()], &MeasureParams::default()).unwrap();
+    let obs = measure_images(
+        &[png16.clone(), tiff.clone()],
+        &MeasureParams::default(),
+        None,
+    )
+    .unwrap()
+    .observations;
     assert_eq!(obs.len(), 2 * scene.spots.len());
     assert_eq!(
         (obs[0].image.as_str(), obs[0].point.as_str()),

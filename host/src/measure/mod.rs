@@ -19,11 +19,14 @@
 //! commands leave it uncorrected. Projected dots are footprints of the projector's light cone
 //! and carry a shift of the same kind; it is not corrected either.
 
+pub mod bench;
 pub mod detect;
 pub mod fit;
 pub mod render;
 
+use crate::io::observations::{Observation, PointKind};
 use anyhow::{bail, Context, Result};
+use deltaz_shared::identify::{Assignment, Identifier};
 use detect::{
     check_shape, components, noise_sigma, BackgroundField, Blob, DetectParams, GrayView, Rejection,
 };
@@ -239,15 +242,29 @@ pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> 
     Ok(measured)
 }
 
+/// The host's identifier: up to 4096 rays, 16384 grid cells, 65536 cell entries (a 12 MP image
+/// in 32-pixel cells).
+pub type HostIdentifier = Identifier<f64, 4096, 16384, 65536>;
+
+/// Observations of measured images, and a line for every dot that identification left out.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MeasuredImages {
+    /// Without identification: every target as `m1`, `m2`, ... (kind `control`); with it: the
+    /// identified dots (kind `dot`, point = ray id).
+    pub observations: Vec<Observation>,
+    /// "image mK (col, row): why" for each ambiguous, conflicting or unassigned dot.
+    pub unidentified: Vec<String>,
+}
+
 /// Measure image files into observations: image label = file stem, point label = `m` + the
-/// target's number in the image (1-based, in row-major order of the targets' boxes). Stops at the
-/// first image that cannot be read or has no targets.
+/// target's number in the image (1-based, in row-major order of the targets' boxes), or with an
+/// identifier the dot's ray id. Stops at the first image that cannot be read or has no targets.
 pub fn measure_images(
     paths: &[std::path::PathBuf],
     params: &MeasureParams,
-) -> Result<Vec<crate::io::observations::Observation>> {
-    use crate::io::observations::Observation;
-    let mut out = Vec::new();
+    identifier: Option<&HostIdentifier>,
+) -> Result<MeasuredImages> {
+    let mut out = MeasuredImages::default();
     let mut labels = std::collections::HashSet::new();
     for path in paths {
         let label = path
@@ -259,13 +276,33 @@ pub fn measure_images(
             bail!("{}: a second image labelled {label}", path.display());
         }
         let measured = measure_file(path, params)?;
-        for (k, t) in measured.targets.iter().enumerate() {
-            out.push(Observation::target(
-                &label,
-                &format!("m{}", k + 1),
-                t.col,
-                t.row,
-            ));
+        let Some(identifier) = identifier else {
+            for (k, t) in measured.targets.iter().enumerate() {
+                let name = format!("m{}", k + 1);
+                out.observations
+                    .push(Observation::target(&label, &name, t.col, t.row));
+            }
+            continue;
+        };
+        let dots: Vec<(f64, f64)> = measured.targets.iter().map(|t| (t.col, t.row)).collect();
+        let mut assigned = vec![Assignment::Unassigned; dots.len()];
+        identifier.identify_frame(&dots, &mut assigned);
+        for (k, (&(col, row), a)) in dots.iter().zip(&assigned).enumerate() {
+            let why = match a {
+                Assignment::Ray { id, .. } => {
+                    let mut o = Observation::target(&label, &id.to_string(), col, row);
+                    o.kind = PointKind::Dot;
+                    out.observations.push(o);
+                    continue;
+                }
+                Assignment::Ambiguous { first, second } => {
+                    format!("ambiguous between rays {first} and {second}")
+                }
+                Assignment::Conflict { id } => format!("ray {id} claimed by another dot too"),
+                Assignment::Unassigned => "no ray's epipolar segment within tolerance".to_owned(),
+            };
+            out.unidentified
+                .push(format!("{label} m{} ({col:.2}, {row:.2}): {why}", k + 1));
         }
     }
     Ok(out)
