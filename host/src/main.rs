@@ -25,6 +25,12 @@ enum Command {
         /// Random seed (default: the scenario's).
         #[arg(long)]
         seed: Option<u64>,
+        /// Also render the images (PNG) into OUT/images, true centres in images/centres.csv.
+        #[arg(long)]
+        images: bool,
+        /// 16-bit PNG instead of 8-bit (with --images).
+        #[arg(long)]
+        sixteen_bit: bool,
     },
     /// Accuracy assessment (Tables 6-7): 7-parameter similarity, residuals, n−1 std, absolute
     /// errors with no fit, flatness. Point files are CSV `point,X,Y,Z`, matched by `point`.
@@ -196,10 +202,25 @@ fn main() -> anyhow::Result<()> {
             scenario,
             out,
             seed,
+            images,
+            sixteen_bit,
         } => {
             let scenario = simulate::load_scenario(&scenario)?;
-            let sim = simulate::simulate(&scenario, seed.unwrap_or(scenario.seed));
+            let seed = seed.unwrap_or(scenario.seed);
+            let sim = simulate::simulate(&scenario, seed);
             simulate::write_simulation(&out, &sim)?;
+            if images {
+                let spec = simulate::images::ImageSpec {
+                    depth: if sixteen_bit {
+                        measure::render::BitDepth::Sixteen
+                    } else {
+                        measure::render::BitDepth::Eight
+                    },
+                    ..Default::default()
+                };
+                let n = simulate::images::write_images(&scenario, seed, &spec, &out)?;
+                println!("{n} images -> {}", out.join("images").display());
+            }
             println!(
                 "{}: {} field observations in {} images, {} plate observations in {} images -> {}",
                 scenario.name,

@@ -57,6 +57,10 @@ pub struct MeasureParams {
     /// ... plus this fraction of the target's amplitude (the template's mismatch and
     /// compression artefacts grow with the contrast).
     pub max_rms_fraction: f64,
+    /// Largest distance between the template and gravity centres (pixels): a blob that is not
+    /// one symmetric ellipse (a dot merged into a target, a partly covered target) moves its
+    /// gravity centre away from the fitted ellipse's centre.
+    pub max_centre_shift: f64,
 }
 
 impl Default for MeasureParams {
@@ -66,7 +70,8 @@ impl Default for MeasureParams {
             method: CentreMethod::Template,
             margin: 3,
             max_rms_sigma: 3.0,
-            max_rms_fraction: 0.03,
+            max_rms_fraction: 0.015,
+            max_centre_shift: 0.25,
         }
     }
 }
@@ -155,7 +160,8 @@ pub fn measure<P: Copy + Into<f64>>(img: &GrayView<P>, params: &MeasureParams) -
                         .filter(|f| {
                             let allowed = params.max_rms_sigma * sigma.max(img.dn)
                                 + params.max_rms_fraction * f.amplitude;
-                            f.rms <= allowed
+                            let moved = (f.col - gc).hypot(f.row - gr);
+                            f.rms <= allowed && moved <= params.max_centre_shift
                         });
                 match fitted {
                     Some(f) => targets.push(Target {

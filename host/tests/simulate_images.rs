@@ -1,0 +1,129 @@
+//! `deltaz simulate --images` for the paper scenario: the rendered images measured back against
+//! their true centres, and the plate's dots identified with the true rig.
+
+use deltaz_host::io::observations::{read_observations, PointKind};
+use deltaz_host::measure::{measure_file, MeasureParams};
+use deltaz_host::simulate::images::{write_images, ImageSpec};
+use deltaz_host::simulate::{true_camera, Scenario};
+use deltaz_shared::collinearity::ExteriorOrientation;
+use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
+use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::rig::Rig;
+use deltaz_shared::rotation::rotation_matrix;
+use nalgebra::Vector3;
+
+#[test]
+fn paper_images_measured_and_identified() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = Scenario::paper();
+    assert_eq!(
+        write_images(&scenario, 1, &ImageSpec::default(), dir.path()).unwrap(),
+        12
+    );
+    let centres = read_observations(&dir.path().join("images/centres.csv")).unwrap();
+
+    // The true rig in the camera system (identification needs only camera and projector).
+    let (grid, inner) = true_camera(&scenario);
+    let [k, p, o] = scenario.rig.projector_angles;
+    let rays: Vec<ProjectorRay<f64>> = scenario
+        .rig
+        .pattern
+        .rays(&rotation_matrix(k, p, o))
+        .iter()
+        .map(|r| ProjectorRay {
+            id: r.id,
+            direction: r.direction,
+            offset: r.offset,
+        })
+        .collect();
+    let projector = Projector::new(Vector3::from(scenario.rig.projector_centre), rays).unwrap();
+    let at_origin = ExteriorOrientation {
+        kappa: 0.0,
+        phi: 0.0,
+        omega: 0.0,
+        centre: Vector3::zeros(),
+    };
+    let rig = Rig::new(grid, inner, &at_origin, projector);
+
+    for image in ["s1", "s5", "p1", "p2", "p3"] {
+        let truth: Vec<_> = centres.iter().filter(|c| c.image == image).collect();
+        // The working range: ±60 mm about the plate image's camera height (stations: 2.3 m).
+        let z0 = scenario
+            .plate
+            .images
+            .get(usize::from(image.as_bytes()[1] - b'1'))
+            .map_or(2300.0, |p| p.Z0);
+        let depth = DepthRange {
+            near: z0 - 60.0,
+            far: z0 + 60.0,
+        };
+        let ident =
+            Box::new(Identifier::<f64, 512, 2048, 8192>::new(&rig, depth, 1.0, 16.0).unwrap());
+        let m = measure_file(
+            &dir.path().join(format!("images/{image}.png")),
+            &MeasureParams::default(),
+        )
+        .unwrap();
+        let (mut sum2, mut matched, mut merged) = (0.0, 0, 0);
+        let (mut dots, mut dots_ok, mut dots_wrong, mut targets_taken) = (0, 0, 0, 0);
+        for t in &m.targets {
+            let (best, miss) = truth
+                .iter()
+                .map(|c| (c, (c.col - t.col).hypot(c.row - t.row)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap();
+            if miss >= 0.5 {
+                // Only a blob of two overlapping spots (a dot on a target) may be off.
+                let near = truth
+                    .iter()
+                    .filter(|c| (c.col - t.col).hypot(c.row - t.row) < 12.0)
+                    .count();
+                assert!(
+                    near >= 2,
+                    "{image}: measured ({}, {}) is no true centre",
+                    t.col,
+                    t.row
+                );
+                merged += 1;
+                continue;
+            }
+            sum2 += miss * miss;
+            matched += 1;
+            let assigned = ident.identify(t.col, t.row);
+            match best.kind {
+                PointKind::Dot => {
+                    dots += 1;
+                    match assigned {
+                        Assignment::Ray { id, .. } if id.to_string() == best.point => dots_ok += 1,
+                        Assignment::Ray { .. } => dots_wrong += 1,
+                        _ => {}
+                    }
+                }
+                PointKind::Control => targets_taken += usize::from(assigned.id().is_some()),
+            }
+        }
+        let rms = (sum2 / matched as f64).sqrt();
+        println!(
+            "{image}: {} true, {matched} measured (RMS {rms:.4} px), {merged} merged accepted, {} rejected; dots {dots}: {dots_ok} identified, {dots_wrong} wrong; targets taken for dots {targets_taken}",
+            truth.len(),
+            m.rejected.len()
+        );
+        assert!(rms < 0.03, "{image}: RMS {rms}");
+        assert!(
+            matched as f64 >= 0.9 * truth.len() as f64,
+            "{image}: {matched} of {}",
+            truth.len()
+        );
+        assert_eq!(dots_wrong, 0, "{image}");
+        assert!(
+            merged as f64 <= 0.02 * truth.len() as f64,
+            "{image}: {merged} merged blobs accepted"
+        );
+        if image.starts_with('p') {
+            assert!(
+                dots_ok as f64 >= 0.99 * dots as f64,
+                "{image}: {dots_ok} of {dots}"
+            );
+        }
+    }
+}
