@@ -2,7 +2,7 @@
 //! their true centres, and the plate's dots identified with the true rig.
 
 use deltaz_host::io::observations::{read_observations, PointKind};
-use deltaz_host::measure::{measure_file, MeasureParams};
+use deltaz_host::measure::{measure_file, measure_images, HostIdentifier, MeasureParams};
 use deltaz_host::simulate::images::{write_images, ImageSpec};
 use deltaz_host::simulate::{true_camera, Scenario};
 use deltaz_shared::collinearity::ExteriorOrientation;
@@ -126,4 +126,48 @@ fn paper_images_measured_and_identified() {
             );
         }
     }
+
+    // The `deltaz measure --system` path: p2's dots as `dot` rows with their ray ids, every
+    // other blob (the control targets) reported, none written.
+    let depth = DepthRange {
+        near: 1680.0,
+        far: 1800.0,
+    };
+    // The host identifier is about 0.6 MB, built on the stack: give it a big one.
+    let host = std::thread::scope(|s| {
+        std::thread::Builder::new()
+            .stack_size(16 << 20)
+            .spawn_scoped(s, || {
+                Box::new(HostIdentifier::new(&rig, depth, 1.0, 16.0).unwrap())
+            })
+            .unwrap()
+            .join()
+            .unwrap()
+    });
+    let p2 = dir.path().join("images/p2.png");
+    let measured = measure_images(&[p2], &MeasureParams::default(), Some(&host)).unwrap();
+    let truth: Vec<_> = centres.iter().filter(|c| c.image == "p2").collect();
+    for o in &measured.observations {
+        assert_eq!(o.kind, PointKind::Dot);
+        let same = truth.iter().find(|c| c.point == o.point).unwrap();
+        assert!(
+            (same.col - o.col).hypot(same.row - o.row) < 0.1,
+            "ray {}",
+            o.point
+        );
+    }
+    let targets = truth
+        .iter()
+        .filter(|c| c.kind == PointKind::Control)
+        .count();
+    println!(
+        "p2 via measure_images: {} dots written, {} reported",
+        measured.observations.len(),
+        measured.unidentified.len()
+    );
+    assert!(measured.observations.len() >= 420);
+    assert!(
+        measured.unidentified.len() <= targets
+            && measured.unidentified.iter().all(|l| l.starts_with("p2 m"))
+    );
 }
