@@ -101,7 +101,10 @@ pub struct Measurement {
 }
 
 /// Detect and measure all targets of an image.
-pub fn measure<P: Copy + Into<f64>>(img: &GrayView<P>, params: &MeasureParams) -> Measurement {
+pub fn measure<P: Copy + Into<f64> + Sync>(
+    img: &GrayView<P>,
+    params: &MeasureParams,
+) -> Measurement {
     let d = &params.detect;
     let background = BackgroundField::estimate(img, d.polarity, d.tile);
     // Quantisation alone gives σ ≥ 1/√12 DN.
@@ -120,59 +123,82 @@ pub fn measure<P: Copy + Into<f64>>(img: &GrayView<P>, params: &MeasureParams) -
             ]
         })
         .collect();
-    let mut targets = Vec::new();
-    let mut rejected = Vec::new();
-    for (i, blob) in blobs.iter().enumerate() {
+    // One blob's verdict: shape tests, then the centre.
+    let centre = |i: usize| -> std::result::Result<Target, (Blob, Rejection)> {
+        let blob = &blobs[i];
         if let Some(why) = check_shape(blob, d, img.width, img.height) {
-            rejected.push((*blob, why));
-            continue;
+            return Err((*blob, why));
         }
         let (gc, gr) = blob.gravity;
-        match params.method {
-            CentreMethod::Gravity => targets.push(Target {
+        if params.method == CentreMethod::Gravity {
+            return Ok(Target {
                 col: gc,
                 row: gr,
                 blob: *blob,
                 fit: None,
-            }),
-            CentreMethod::Template => {
-                let m = params.margin;
-                let window = [
-                    blob.bbox[0].saturating_sub(m),
-                    blob.bbox[1].saturating_sub(m),
-                    blob.bbox[2] + m,
-                    blob.bbox[3] + m,
-                ];
-                let exclude: Vec<[usize; 4]> = grown
-                    .iter()
-                    .enumerate()
-                    .filter(|&(j, g)| {
-                        j != i
-                            && g[0] <= window[2]
-                            && g[2] >= window[0]
-                            && g[1] <= window[3]
-                            && g[3] >= window[1]
-                    })
-                    .map(|(_, g)| *g)
-                    .collect();
-                let fitted =
-                    fit::fit_template(img, d.polarity, blob, background.at(gc, gr), m, &exclude)
-                        .filter(|f| {
-                            let allowed = params.max_rms_sigma * sigma.max(img.dn)
-                                + params.max_rms_fraction * f.amplitude;
-                            let moved = (f.col - gc).hypot(f.row - gr);
-                            f.rms <= allowed && moved <= params.max_centre_shift
-                        });
-                match fitted {
-                    Some(f) => targets.push(Target {
-                        col: f.col,
-                        row: f.row,
-                        blob: *blob,
-                        fit: Some(f),
-                    }),
-                    None => rejected.push((*blob, Rejection::Fit)),
-                }
-            }
+            });
+        }
+        let m = params.margin;
+        let window = [
+            blob.bbox[0].saturating_sub(m),
+            blob.bbox[1].saturating_sub(m),
+            blob.bbox[2] + m,
+            blob.bbox[3] + m,
+        ];
+        let exclude: Vec<[usize; 4]> = grown
+            .iter()
+            .enumerate()
+            .filter(|&(j, g)| {
+                j != i
+                    && g[0] <= window[2]
+                    && g[2] >= window[0]
+                    && g[1] <= window[3]
+                    && g[3] >= window[1]
+            })
+            .map(|(_, g)| *g)
+            .collect();
+        fit::fit_template(img, d.polarity, blob, background.at(gc, gr), m, &exclude)
+            .filter(|f| {
+                let allowed = params.max_rms_sigma * sigma.max(img.dn)
+                    + params.max_rms_fraction * f.amplitude;
+                let moved = (f.col - gc).hypot(f.row - gr);
+                f.rms <= allowed && moved <= params.max_centre_shift
+            })
+            .map(|f| Target {
+                col: f.col,
+                row: f.row,
+                blob: *blob,
+                fit: Some(f),
+            })
+            .ok_or((*blob, Rejection::Fit))
+    };
+    // The blobs are independent: split them over the cores, keep their order.
+    let count = blobs.len();
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let chunk = count.div_ceil(threads).max(1);
+    let verdicts: Vec<_> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..count)
+            .step_by(chunk)
+            .map(|start| {
+                let centre = &centre;
+                s.spawn(move || {
+                    (start..(start + chunk).min(count))
+                        .map(centre)
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("a measuring thread panicked"))
+            .collect()
+    });
+    let mut targets = Vec::new();
+    let mut rejected = Vec::new();
+    for verdict in verdicts {
+        match verdict {
+            Ok(t) => targets.push(t),
+            Err(r) => rejected.push(r),
         }
     }
     Measurement {
