@@ -5,6 +5,7 @@ use deltaz_host::measure::detect::GrayView;
 use deltaz_host::measure::render::{Background, Scene, Spot};
 use deltaz_host::measure::{measure, MeasureParams};
 use deltaz_host::simulate::{true_camera, Scenario};
+use deltaz_shared::camera::PixelGrid;
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
 use deltaz_shared::projector::{Projector, ProjectorRay};
@@ -139,6 +140,40 @@ fn frame(torso: &Torso, dot_angle: f64, seed: u64) -> (HostRig, Vec<(u16, Vector
 }
 
 type Paper = Identifier<f64, 512, 2048, 8192>;
+/// The device's identifier: f32, the same capacities but a tighter entry table.
+type Device = Identifier<f32, 512, 2048, 4096>;
+
+/// The rig in f32 as the device holds it (centred on the camera, cast from the host's f64).
+fn device_rig(rig: &HostRig) -> Rig<f32, Vec<ProjectorRay<f32>>> {
+    let c = |v: f64| v as f32;
+    let v = |x: Vector3<f64>| x.map(c);
+    let g = rig.grid();
+    let grid = PixelGrid {
+        pixel_size: c(g.pixel_size),
+        width: g.width,
+        height: g.height,
+        origin_col: c(g.origin_col),
+        origin_row: c(g.origin_row),
+    };
+    let projector = rig.projector_centred();
+    let rays = projector
+        .rays()
+        .iter()
+        .map(|r| ProjectorRay {
+            id: r.id,
+            direction: v(r.direction).normalize(),
+            offset: v(r.offset),
+        })
+        .collect();
+    let projector = Projector::new(v(projector.centre()), rays).unwrap();
+    Rig::from_centred(
+        grid,
+        rig.inner().cast::<f32>(),
+        rig.r_cam_world().map(c),
+        v(rig.camera_centre()),
+        projector,
+    )
+}
 
 /// The bar: no wrong assignment, every other dot reported, ≥ 99 % identified.
 #[test]
@@ -204,6 +239,40 @@ fn torso_frames_identified() {
             ident.entries()
         );
         assert_eq!(wrong, 0);
+        // The device (f32, the same shared code) makes the same assignments.
+        let device = std::thread::scope(|s| {
+            std::thread::Builder::new()
+                .stack_size(16 << 20)
+                .spawn_scoped(s, || {
+                    Box::new(
+                        Device::new(
+                            &device_rig(&rig),
+                            DepthRange {
+                                near: depth.near as f32,
+                                far: depth.far as f32,
+                            },
+                            1.0,
+                            16.0,
+                        )
+                        .unwrap(),
+                    )
+                })
+                .unwrap()
+                .join()
+                .unwrap()
+        });
+        let dots32: Vec<(f32, f32)> = dots.iter().map(|&(c, r)| (c as f32, r as f32)).collect();
+        let mut out32 = vec![Assignment::Unassigned; dots.len()];
+        assert_eq!(device.identify_frame(&dots32, &mut out32), identified);
+        for (a, b) in out.iter().zip(&out32) {
+            assert_eq!(a.id(), b.id());
+        }
+        if n == 0 {
+            println!(
+                "device identifier: {} bytes (f32, 512 rays, 2048 cells, 4096 entries)",
+                std::mem::size_of::<Device>()
+            );
+        }
         assert!(
             truth.len() > 400,
             "the pattern should fill the frame: {}",
