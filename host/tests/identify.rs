@@ -4,13 +4,13 @@
 use deltaz_host::measure::detect::GrayView;
 use deltaz_host::measure::render::{Background, Scene, Spot};
 use deltaz_host::measure::{measure, MeasureParams};
+use deltaz_host::simulate::images::true_rig;
 use deltaz_host::simulate::{true_camera, Scenario};
 use deltaz_shared::camera::PixelGrid;
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::rig::Rig;
-use deltaz_shared::rotation::rotation_matrix;
 use nalgebra::{Vector2, Vector3};
 
 /// Everything is in the camera system (camera at the origin, looking along −z).
@@ -74,17 +74,9 @@ fn frame(torso: &Torso, dot_angle: f64, seed: u64) -> (HostRig, Vec<(u16, Vector
             centre: Vector3::zeros(),
         },
     };
-    let [k, p, o] = scenario.rig.projector_angles;
-    let pattern = scenario.rig.pattern.rays(&rotation_matrix(k, p, o));
-    let centre = Vector3::from(scenario.rig.projector_centre);
-    let rays: Vec<ProjectorRay<f64>> = pattern
-        .iter()
-        .map(|r| ProjectorRay {
-            id: r.id,
-            direction: r.direction,
-            offset: r.offset,
-        })
-        .collect();
+    let rig = true_rig(&scenario);
+    let centre = rig.projector_centred().centre();
+    let rays = rig.projector_centred().rays().to_vec();
     let mut dots = Vec::new();
     let mut spots = Vec::new();
     for ray in &rays {
@@ -118,8 +110,6 @@ fn frame(torso: &Torso, dot_angle: f64, seed: u64) -> (HostRig, Vec<(u16, Vector
         });
         dots.push((ray.id, Vector2::new(col, row)));
     }
-    let projector = Projector::new(centre, rays).unwrap();
-    let rig = Rig::new(grid, inner, &camera.exterior, projector);
     let scene = Scene {
         width: grid.width as usize,
         height: grid.height as usize,

@@ -3,14 +3,9 @@
 
 use deltaz_host::io::observations::{read_observations, PointKind};
 use deltaz_host::measure::{measure_file, measure_images, HostIdentifier, MeasureParams};
-use deltaz_host::simulate::images::{write_images, ImageSpec};
-use deltaz_host::simulate::{true_camera, Scenario};
-use deltaz_shared::collinearity::ExteriorOrientation;
+use deltaz_host::simulate::images::{true_rig, write_images, ImageSpec};
+use deltaz_host::simulate::Scenario;
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
-use deltaz_shared::projector::{Projector, ProjectorRay};
-use deltaz_shared::rig::Rig;
-use deltaz_shared::rotation::rotation_matrix;
-use nalgebra::Vector3;
 
 #[test]
 fn paper_images_measured_and_identified() {
@@ -22,28 +17,7 @@ fn paper_images_measured_and_identified() {
     );
     let centres = read_observations(&dir.path().join("images/centres.csv")).unwrap();
 
-    // The true rig in the camera system (identification needs only camera and projector).
-    let (grid, inner) = true_camera(&scenario);
-    let [k, p, o] = scenario.rig.projector_angles;
-    let rays: Vec<ProjectorRay<f64>> = scenario
-        .rig
-        .pattern
-        .rays(&rotation_matrix(k, p, o))
-        .iter()
-        .map(|r| ProjectorRay {
-            id: r.id,
-            direction: r.direction,
-            offset: r.offset,
-        })
-        .collect();
-    let projector = Projector::new(Vector3::from(scenario.rig.projector_centre), rays).unwrap();
-    let at_origin = ExteriorOrientation {
-        kappa: 0.0,
-        phi: 0.0,
-        omega: 0.0,
-        centre: Vector3::zeros(),
-    };
-    let rig = Rig::new(grid, inner, &at_origin, projector);
+    let rig = true_rig(&scenario);
 
     for image in ["s1", "s5", "p1", "p2", "p3"] {
         let truth: Vec<_> = centres.iter().filter(|c| c.image == image).collect();

@@ -14,7 +14,9 @@ use super::{field_stations, field_targets, true_camera, Scenario};
 use crate::io::observations::{write_observations, Observation, PointKind};
 use crate::measure::render::{Background, BitDepth, Scene, Spot};
 use anyhow::Result;
-use deltaz_shared::collinearity::Camera;
+use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
+use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::rig::Rig;
 use deltaz_shared::rotation::rotation_matrix;
 use nalgebra::{Matrix2, Vector2, Vector3};
 use std::path::Path;
@@ -110,6 +112,33 @@ fn scene(camera: &Camera<f64>, spots: Vec<Spot>, spec: &ImageSpec, seed: u64) ->
         noise_sigma: spec.noise_sigma,
         seed,
     }
+}
+
+/// The scenario's true camera and projector as a rig in the camera system (camera at the
+/// origin, unrotated): all that dot identification needs.
+pub fn true_rig(scenario: &Scenario) -> crate::system::SystemRig {
+    let (grid, inner) = true_camera(scenario);
+    let [k, p, o] = scenario.rig.projector_angles;
+    let rays = scenario
+        .rig
+        .pattern
+        .rays(&rotation_matrix(k, p, o))
+        .iter()
+        .map(|r| ProjectorRay {
+            id: r.id,
+            direction: r.direction,
+            offset: r.offset,
+        })
+        .collect();
+    let projector = Projector::new(Vector3::from(scenario.rig.projector_centre), rays)
+        .expect("the pattern's rays are sorted unit vectors");
+    let at_origin = ExteriorOrientation {
+        kappa: 0.0,
+        phi: 0.0,
+        omega: 0.0,
+        centre: Vector3::zeros(),
+    };
+    Rig::new(grid, inner, &at_origin, projector)
 }
 
 /// Render every field and plate image of `scenario` into `dir/images/` (`s1.png`, …, `p1.png`,
