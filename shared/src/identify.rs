@@ -17,9 +17,10 @@
 //! Two rays whose segments come within twice the tolerance of each other cannot be told apart
 //! where they do. With a camera-projector baseline along the image rows, the dots of one pattern
 //! row share one epipolar line: their segments must then not overlap along it, which limits the
-//! depth range to about one column pitch of disparity. Rotating the pattern a little against the
-//! baseline (the simulator's pattern does) separates the lines of neighbouring columns, so the
-//! depth range may span several column pitches; [`Identifier::close_pairs`] counts the pairs of
+//! depth range to about one column pitch of disparity. Rotating the pattern against the baseline
+//! separates the lines of neighbouring columns, so the depth range may span several column
+//! pitches (the paper's rows, Table 4, are turned by about 1.6°: enough for torso frames spanning
+//! 160 mm, see the host's identification tests); [`Identifier::close_pairs`] counts the pairs of
 //! rays that come too close, to check a design.
 
 use crate::collinearity::project_camera_point;
