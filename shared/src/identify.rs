@@ -172,6 +172,8 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
         tolerance: T,
         cell: T,
     ) -> Result<Self, IdentifyError> {
+        // Ray indices and per-cell counts are u16.
+        const { assert!(R <= u16::MAX as usize, "at most 65535 rays") };
         let rays = rig.projector_centred().rays();
         if rays.len() > R {
             return Err(IdentifyError::TooManyRays);
