@@ -22,6 +22,7 @@
 pub mod bench;
 pub mod detect;
 pub mod fit;
+pub mod grid;
 pub mod render;
 
 use crate::io::observations::{Observation, PointKind};

@@ -38,6 +38,11 @@ pub struct ImageSpec {
     pub noise_sigma: f64,
     /// Sample depth of the PNG files.
     pub depth: BitDepth,
+    /// The grid node (row, column) whose dot is the marker, drawn `marker_scale` times larger
+    /// (for identification by the grid topology, [`crate::measure::grid`]).
+    pub marker_node: Option<(u16, u16)>,
+    /// Size of the marker dot relative to the others.
+    pub marker_scale: f64,
 }
 
 impl Default for ImageSpec {
@@ -50,6 +55,8 @@ impl Default for ImageSpec {
             blur_sigma: 1.0,
             noise_sigma: 2.0,
             depth: BitDepth::Eight,
+            marker_node: Some((10, 11)),
+            marker_scale: 1.7,
         }
     }
 }
@@ -176,6 +183,7 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
     let rig = &scenario.rig;
     let [pk, pp, po] = rig.projector_angles;
     let rays = rig.pattern.rays(&rotation_matrix(pk, pp, po));
+    let marker = spec.marker_node.map(|(r, c)| rig.pattern.id(r, c));
     let centre_cam = Vector3::from(rig.projector_centre);
     for (k, pose) in scenario.plate.images.iter().enumerate() {
         let image = format!("p{}", k + 1);
@@ -215,7 +223,12 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
             let e1 = dir.cross(&Vector3::y()).normalize();
             let e2 = dir.cross(&e1);
             let side = |e: Vector3<f64>| {
-                let a = spec.dot_angle;
+                let scale = if marker == Some(ray.id) {
+                    spec.marker_scale
+                } else {
+                    1.0
+                };
+                let a = spec.dot_angle * scale;
                 Some((pix((dir + e * a).normalize())? - pix((dir - e * a).normalize())?) / 2.0)
             };
             let (Some(c), Some(a1), Some(a2)) = (pix(dir), side(e1), side(e2)) else {
