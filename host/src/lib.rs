@@ -10,6 +10,7 @@ pub mod demo;
 pub mod device_cli;
 pub mod io;
 pub mod link;
+pub mod measure;
 pub mod ply;
 pub mod projector_calibration;
 pub mod reconstruct;

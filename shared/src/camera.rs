@@ -130,7 +130,9 @@ impl<T: RealField + Copy> InnerOrientation<T> {
         if !(refined.x.is_finite() && refined.y.is_finite()) {
             return Err(Error::NotFinite);
         }
-        let tol = lit::<T>(1e-13) * (T::one() + refined.norm());
+        // 1e-13 relative in f64; a few ulps where the scalar cannot reach that (f32 on the device).
+        let tol =
+            lit::<T>(1e-13).max(T::default_epsilon() * lit::<T>(8.0)) * (T::one() + refined.norm());
         let mut reduced = refined;
         for _ in 0..30 {
             let residual = reduced + self.distortion(reduced) - refined;

@@ -8,6 +8,7 @@
 //! | [`camera`] | section 6.2.1 | pixel ↔ photo coordinates, image refinement (principal point, distortion) |
 //! | [`collinearity`] | eqs (1), (3), (4), (6), (7) | exterior orientation, projection, the camera ray |
 //! | [`projector`] | eq. (5) | the calibrated projector: a centre and a table of rays |
+//! | [`identify`] | section 4 (open problem) | which projector ray made each detected dot (epipolar segments) |
 //! | [`intersection`] | eqs (8), (9) | λ, λp, and a least-squares closest approach |
 //! | [`rig`] | section 2 | camera + projector: an image point and a ray id → a 3D point |
 //! | [`protocol`] | — | the host ↔ device wire protocol (messages, frames, calibration blob) |
@@ -30,6 +31,7 @@
 
 pub mod camera;
 pub mod collinearity;
+pub mod identify;
 pub mod intersection;
 pub mod projector;
 pub mod protocol;

@@ -1,0 +1,493 @@
+//! Blob detection: a tiled background model, an adaptive threshold, connected components by runs
+//! (one row at a time, no label image) and shape tests.
+//!
+//! Each component yields its area, bounding box, second moments and the intensity-weighted
+//! centroid (the paper's "gravity centre", section 6.2.1) with weights w = I − background over the
+//! pixels above the threshold.
+
+use std::f64::consts::PI;
+
+/// A borrowed grayscale image, row-major (8-bit, 16-bit or float samples): no copy is made.
+#[derive(Debug, Clone, Copy)]
+pub struct GrayView<'a, P> {
+    /// Width (pixels).
+    pub width: usize,
+    /// Height (pixels).
+    pub height: usize,
+    /// Row-major samples, `width * height` of them.
+    pub pixels: &'a [P],
+    /// One DN of the 8-bit scale in sample units (1 for 8-bit, 257 for 16-bit samples): the
+    /// unit of contrasts and reported noise.
+    pub dn: f64,
+}
+
+/// Whether targets are brighter or darker than their surroundings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Polarity {
+    /// Bright targets on a darker background (projected dots, retro-reflective targets).
+    #[default]
+    Bright,
+    /// Dark targets on a brighter background.
+    Dark,
+}
+
+impl<P: Copy + Into<f64>> GrayView<'_, P> {
+    /// The sample at (col, row) with the polarity's sign: targets are always positive.
+    #[inline]
+    pub fn signed(&self, col: usize, row: usize, polarity: Polarity) -> f64 {
+        let v: f64 = self.pixels[row * self.width + col].into();
+        match polarity {
+            Polarity::Bright => v,
+            Polarity::Dark => -v,
+        }
+    }
+}
+
+/// Detection settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DetectParams {
+    /// Bright or dark targets.
+    pub polarity: Polarity,
+    /// Side of the background tiles (pixels); a few target diameters.
+    pub tile: usize,
+    /// Threshold above the local background, in units of the image noise σ.
+    pub k_sigma: f64,
+    /// ... but at least this contrast (DN of the 8-bit scale): compressed images (JPEG) can
+    /// show almost no noise and blocking artefacts instead.
+    pub min_contrast: f64,
+    /// Smallest accepted component (pixels).
+    pub min_area: usize,
+    /// Largest accepted component (pixels).
+    pub max_area: usize,
+    /// Accepted range of area / (area of the moments' ellipse): 1 for a filled ellipse, about
+    /// 0.89 for two touching discs.
+    pub fill: (f64, f64),
+    /// Largest accepted axis ratio of the moments' ellipse.
+    pub max_aspect: f64,
+}
+
+impl Default for DetectParams {
+    fn default() -> Self {
+        Self {
+            polarity: Polarity::Bright,
+            tile: 32,
+            k_sigma: 5.0,
+            min_contrast: 8.0,
+            min_area: 12,
+            max_area: 5000,
+            fill: (0.93, 1.08),
+            max_aspect: 3.0,
+        }
+    }
+}
+
+/// The smooth background: the median of each tile, interpolated bilinearly between tile centres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BackgroundField {
+    tile: usize,
+    nx: usize,
+    ny: usize,
+    medians: Vec<f64>,
+}
+
+impl BackgroundField {
+    /// Estimate from an image (signed by polarity).
+    pub fn estimate<P: Copy + Into<f64>>(
+        img: &GrayView<P>,
+        polarity: Polarity,
+        tile: usize,
+    ) -> Self {
+        let tile = tile.max(4);
+        let nx = img.width.div_ceil(tile);
+        let ny = img.height.div_ceil(tile);
+        let mut medians = Vec::with_capacity(nx * ny);
+        let mut buf = Vec::with_capacity(tile * tile);
+        for ty in 0..ny {
+            for tx in 0..nx {
+                buf.clear();
+                for r in ty * tile..((ty + 1) * tile).min(img.height) {
+                    for c in tx * tile..((tx + 1) * tile).min(img.width) {
+                        buf.push(img.signed(c, r, polarity));
+                    }
+                }
+                medians.push(median(&mut buf));
+            }
+        }
+        Self {
+            tile,
+            nx,
+            ny,
+            medians,
+        }
+    }
+
+    /// The background at a pixel (signed by polarity).
+    pub fn at(&self, col: f64, row: f64) -> f64 {
+        let t = self.tile as f64;
+        let fx = ((col + 0.5) / t - 0.5).clamp(0.0, (self.nx - 1) as f64);
+        let fy = ((row + 0.5) / t - 0.5).clamp(0.0, (self.ny - 1) as f64);
+        let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(self.nx - 1), (y0 + 1).min(self.ny - 1));
+        let (ax, ay) = (fx - x0 as f64, fy - y0 as f64);
+        let m = |x: usize, y: usize| self.medians[y * self.nx + x];
+        (1.0 - ay) * ((1.0 - ax) * m(x0, y0) + ax * m(x1, y0))
+            + ay * ((1.0 - ax) * m(x0, y1) + ax * m(x1, y1))
+    }
+}
+
+/// The median of a buffer (reordered in place); 0 for an empty one.
+fn median(buf: &mut [f64]) -> f64 {
+    if buf.is_empty() {
+        return 0.0;
+    }
+    let mid = buf.len() / 2;
+    *buf.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The image noise σ from the median absolute difference of horizontal neighbours
+/// (σ = 1.4826 · median|Δ| / √2), robust to targets and a smooth background. At most about 2²⁰
+/// pairs are sampled.
+pub fn noise_sigma<P: Copy + Into<f64>>(img: &GrayView<P>) -> f64 {
+    let pairs = img.width.saturating_sub(1) * img.height;
+    let step = (pairs >> 20).max(1);
+    let mut diffs = Vec::with_capacity(pairs / step + 1);
+    let mut k = 0;
+    for r in 0..img.height {
+        for c in 0..img.width.saturating_sub(1) {
+            if k % step == 0 {
+                let a = img.signed(c, r, Polarity::Bright);
+                diffs.push((img.signed(c + 1, r, Polarity::Bright) - a).abs());
+            }
+            k += 1;
+        }
+    }
+    1.4826 * median(&mut diffs) / 2f64.sqrt()
+}
+
+/// One connected component above the threshold.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Blob {
+    /// Pixels in the component.
+    pub area: usize,
+    /// Bounding box: first column, first row, last column, last row (inclusive).
+    pub bbox: [usize; 4],
+    /// The gravity centre: Σ w (col, row) / Σ w, w = I − background.
+    pub gravity: (f64, f64),
+    /// Second central moments of the pixel positions: (cc, cr, rr).
+    pub cov: (f64, f64, f64),
+    /// The largest I − background (DN, signed by polarity).
+    pub peak: f64,
+}
+
+impl Blob {
+    /// The axis ratio of the moments' ellipse (≥ 1).
+    pub fn aspect(&self) -> f64 {
+        let (a, b, c) = self.cov;
+        let mean = (a + c) / 2.0;
+        let dev = (((a - c) / 2.0).powi(2) + b * b).sqrt();
+        ((mean + dev) / (mean - dev).max(1e-12)).sqrt()
+    }
+
+    /// Area over the area of the ellipse with the same second moments, 4π√det: 1 for a filled
+    /// ellipse.
+    pub fn fill(&self) -> f64 {
+        let (a, b, c) = self.cov;
+        self.area as f64 / (4.0 * PI * (a * c - b * b).max(1e-12).sqrt())
+    }
+}
+
+/// Why a component is not a target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rejection {
+    /// Fewer pixels than `min_area` (noise, specks).
+    TooSmall,
+    /// More pixels than `max_area` (clutter, reflections).
+    TooLarge,
+    /// It touches the image border (its centre would be biased).
+    Border,
+    /// Not an ellipse: fill or axis ratio out of range (merged blobs, lines, clutter).
+    Shape,
+    /// The sub-pixel fit failed or left residuals far above the noise.
+    Fit,
+}
+
+impl std::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Rejection::TooSmall => "smaller than the minimum area",
+            Rejection::TooLarge => "larger than the maximum area",
+            Rejection::Border => "touches the image border",
+            Rejection::Shape => "not elliptical (merged blobs or clutter)",
+            Rejection::Fit => "the sub-pixel fit failed or fits badly",
+        })
+    }
+}
+
+/// Running sums of one component.
+#[derive(Debug, Clone, Copy)]
+struct Sums {
+    n: usize,
+    sc: f64,
+    sr: f64,
+    scc: f64,
+    scr: f64,
+    srr: f64,
+    sw: f64,
+    swc: f64,
+    swr: f64,
+    bbox: [usize; 4],
+    peak: f64,
+}
+
+impl Sums {
+    fn new(col: usize, row: usize) -> Self {
+        Self {
+            n: 0,
+            sc: 0.0,
+            sr: 0.0,
+            scc: 0.0,
+            scr: 0.0,
+            srr: 0.0,
+            sw: 0.0,
+            swc: 0.0,
+            swr: 0.0,
+            bbox: [col, row, col, row],
+            peak: f64::NEG_INFINITY,
+        }
+    }
+
+    fn add(&mut self, col: usize, row: usize, w: f64) {
+        let (c, r) = (col as f64, row as f64);
+        self.n += 1;
+        self.sc += c;
+        self.sr += r;
+        self.scc += c * c;
+        self.scr += c * r;
+        self.srr += r * r;
+        self.sw += w;
+        self.swc += w * c;
+        self.swr += w * r;
+        self.bbox = [
+            self.bbox[0].min(col),
+            self.bbox[1].min(row),
+            self.bbox[2].max(col),
+            self.bbox[3].max(row),
+        ];
+        self.peak = self.peak.max(w);
+    }
+
+    fn merge(&mut self, o: &Sums) {
+        self.n += o.n;
+        self.sc += o.sc;
+        self.sr += o.sr;
+        self.scc += o.scc;
+        self.scr += o.scr;
+        self.srr += o.srr;
+        self.sw += o.sw;
+        self.swc += o.swc;
+        self.swr += o.swr;
+        self.bbox = [
+            self.bbox[0].min(o.bbox[0]),
+            self.bbox[1].min(o.bbox[1]),
+            self.bbox[2].max(o.bbox[2]),
+            self.bbox[3].max(o.bbox[3]),
+        ];
+        self.peak = self.peak.max(o.peak);
+    }
+
+    fn blob(&self) -> Blob {
+        let n = self.n as f64;
+        let (mc, mr) = (self.sc / n, self.sr / n);
+        Blob {
+            area: self.n,
+            bbox: self.bbox,
+            gravity: (self.swc / self.sw, self.swr / self.sw),
+            cov: (
+                self.scc / n - mc * mc,
+                self.scr / n - mc * mr,
+                self.srr / n - mr * mr,
+            ),
+            peak: self.peak,
+        }
+    }
+}
+
+fn find(parent: &mut [usize], mut i: usize) -> usize {
+    while parent[i] != i {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    i
+}
+
+/// The components of the pixels above background + k σ (8-connected), found row by row.
+pub fn components<P: Copy + Into<f64>>(
+    img: &GrayView<P>,
+    polarity: Polarity,
+    background: &BackgroundField,
+    threshold: f64,
+) -> Vec<Blob> {
+    let mut parent: Vec<usize> = Vec::new();
+    let mut sums: Vec<Sums> = Vec::new();
+    let mut prev: Vec<(usize, usize, usize)> = Vec::new();
+    let mut cur: Vec<(usize, usize, usize)> = Vec::new();
+    let mut weights = vec![0.0; img.width];
+    for r in 0..img.height {
+        cur.clear();
+        let mut c = 0;
+        while c < img.width {
+            let w = img.signed(c, r, polarity) - background.at(c as f64, r as f64);
+            if w <= threshold {
+                c += 1;
+                continue;
+            }
+            let start = c;
+            weights[c] = w;
+            c += 1;
+            while c < img.width {
+                let w = img.signed(c, r, polarity) - background.at(c as f64, r as f64);
+                if w <= threshold {
+                    break;
+                }
+                weights[c] = w;
+                c += 1;
+            }
+            // Runs of the previous row touching [start, c) with 8-connectivity.
+            let mut label = None;
+            for &(p0, p1, plabel) in &prev {
+                if p0 <= c && p1 >= start {
+                    let root = find(&mut parent, plabel);
+                    match label {
+                        None => label = Some(root),
+                        Some(l) if l != root => {
+                            let (keep, gone) = (l.min(root), l.max(root));
+                            parent[gone] = keep;
+                            label = Some(keep);
+                        }
+                        Some(_) => {}
+                    }
+                }
+            }
+            let label = label.unwrap_or_else(|| {
+                parent.push(parent.len());
+                sums.push(Sums::new(start, r));
+                parent.len() - 1
+            });
+            for (col, &w) in weights.iter().enumerate().take(c).skip(start) {
+                sums[label].add(col, r, w);
+            }
+            cur.push((start, c, label));
+        }
+        std::mem::swap(&mut prev, &mut cur);
+    }
+    for i in 0..parent.len() {
+        let root = find(&mut parent, i);
+        if root != i {
+            let moved = sums[i];
+            sums[root].merge(&moved);
+        }
+    }
+    (0..parent.len())
+        .filter(|&i| parent[i] == i)
+        .map(|i| sums[i].blob())
+        .collect()
+}
+
+/// The shape tests of a component, in order: area, border, ellipse fill and axis ratio.
+pub fn check_shape(
+    blob: &Blob,
+    params: &DetectParams,
+    width: usize,
+    height: usize,
+) -> Option<Rejection> {
+    if blob.area < params.min_area {
+        return Some(Rejection::TooSmall);
+    }
+    if blob.area > params.max_area {
+        return Some(Rejection::TooLarge);
+    }
+    let [c0, r0, c1, r1] = blob.bbox;
+    if c0 == 0 || r0 == 0 || c1 + 1 >= width || r1 + 1 >= height {
+        return Some(Rejection::Border);
+    }
+    let fill = blob.fill();
+    if fill < params.fill.0 || fill > params.fill.1 || blob.aspect() > params.max_aspect {
+        return Some(Rejection::Shape);
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two squares and an L joined diagonally: three components, the L's diagonal neighbour
+    /// merged by 8-connectivity, gravity centres exact.
+    #[test]
+    fn components_by_runs() {
+        #[rustfmt::skip]
+        let px: [u8; 8 * 6] = [
+            0, 0, 0, 0, 0, 0, 0, 0,
+            0, 9, 9, 0, 0, 0, 5, 0,
+            0, 9, 9, 0, 0, 5, 0, 0,
+            0, 0, 0, 0, 5, 0, 0, 0,
+            0, 7, 0, 0, 5, 5, 0, 0,
+            0, 0, 0, 0, 0, 0, 0, 0,
+        ];
+        let img = GrayView {
+            width: 8,
+            height: 6,
+            pixels: &px,
+            dn: 1.0,
+        };
+        let bg = BackgroundField::estimate(&img, Polarity::Bright, 8);
+        assert_eq!(bg.at(3.0, 3.0), 0.0);
+        let mut blobs = components(&img, Polarity::Bright, &bg, 1.0);
+        blobs.sort_by_key(|b| b.area);
+        assert_eq!(blobs.len(), 3);
+        assert_eq!((blobs[0].area, blobs[0].gravity), (1, (1.0, 4.0)));
+        assert_eq!((blobs[1].area, blobs[1].gravity), (4, (1.5, 1.5)));
+        assert_eq!(blobs[2].area, 5);
+        assert_eq!(blobs[2].bbox, [4, 1, 6, 4]);
+        assert!((blobs[2].gravity.0 - 24.0 / 5.0).abs() < 1e-12);
+        let dark: Vec<u8> = px.iter().map(|v| 20 - v).collect();
+        let img = GrayView {
+            width: 8,
+            height: 6,
+            pixels: &dark[..],
+            dn: 1.0,
+        };
+        let bg = BackgroundField::estimate(&img, Polarity::Dark, 8);
+        assert_eq!(components(&img, Polarity::Dark, &bg, 1.0).len(), 3);
+    }
+
+    #[test]
+    fn noise_estimate() {
+        use crate::measure::render::{Background, Scene};
+        let scene = Scene {
+            width: 300,
+            height: 200,
+            spots: vec![],
+            background: Background {
+                level: 80.0,
+                slope_col: 0.2,
+                slope_row: -0.1,
+                ripple: 10.0,
+                ripple_period: 150.0,
+            },
+            falloff: 0.0,
+            blur_sigma: 0.0,
+            noise_sigma: 3.0,
+            seed: 3,
+        };
+        let img = scene.render();
+        let view = GrayView {
+            width: 300,
+            height: 200,
+            pixels: &img.pixels[..],
+            dn: 1.0,
+        };
+        let s = noise_sigma(&view);
+        assert!((s - 3.0).abs() < 0.1, "{s}");
+    }
+}

@@ -1,0 +1,709 @@
+//! Epipolar identification of projected dots: which projector ray made each detected dot.
+//!
+//! With a calibrated system, the image of projector ray k over the working depth range is a short
+//! epipolar segment: the camera's image (eq. 1 with distortion) of the ray's points
+//! X = X_p + λ (l, m, n) (eq. 5) between the near and far depth. A dot belongs to the ray whose
+//! segment passes within the tolerance; if two segments do, the dot is *ambiguous*, if none does it
+//! is *unassigned*, and if two dots claim one ray both are *conflicts*: nothing is guessed.
+//!
+//! The segments bend slightly with lens distortion, so each is kept as a polyline of
+//! [`SUBSEGMENTS`] pieces. A lookup grid over the image, built once when the calibration is
+//! loaded, lists for every cell the rays whose segment passes within tolerance + half a cell
+//! diagonal of its centre; a dot is then compared only with its own cell's few candidates.
+//! Everything lives in fixed-capacity arrays (no allocator): `R` rays, `C` grid cells and `E`
+//! cell entries in all.
+//!
+//! # What the pattern and the geometry must give
+//! Two rays whose segments come within twice the tolerance of each other cannot be told apart
+//! where they do. With a camera-projector baseline along the image rows, the dots of one pattern
+//! row share one epipolar line: their segments must then not overlap along it, which limits the
+//! depth range to about one column pitch of disparity. Rotating the pattern against the baseline
+//! separates the lines of neighbouring columns, so the depth range may span several column
+//! pitches (the paper's rows, Table 4, are turned by about 1.6°: enough for torso frames spanning
+//! 160 mm, see the host's identification tests); [`Identifier::close_pairs`] counts the pairs of
+//! rays that come too close, to check a design.
+
+use crate::collinearity::project_camera_point;
+use crate::projector::ProjectorRay;
+use crate::rig::Rig;
+use crate::{lit, Error};
+use nalgebra::{RealField, Vector2, Vector3};
+
+/// Pieces of each epipolar polyline.
+pub const SUBSEGMENTS: usize = 4;
+
+/// The working depth range: distances from the camera's perspective centre along its viewing
+/// axis (mm), near < far.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthRange<T> {
+    /// Nearest surface distance (mm).
+    pub near: T,
+    /// Farthest surface distance (mm).
+    pub far: T,
+}
+
+/// Why an identifier cannot be built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum IdentifyError {
+    /// The projector has more rays than the identifier's capacity `R`.
+    TooManyRays,
+    /// The image needs more grid cells than the capacity `C` (use larger cells).
+    TooManyCells,
+    /// The segments fill more cell entries than the capacity `E` (use smaller cells or a
+    /// smaller tolerance or depth range).
+    TooManyEntries,
+    /// The depth range is not near < far with near > 0, or the tolerance or cell size is not
+    /// positive.
+    InvalidParameters,
+    /// A ray's segment cannot be imaged (it passes behind the camera, or the geometry fails).
+    Geometry(u16, Error),
+}
+
+impl core::fmt::Display for IdentifyError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            IdentifyError::TooManyRays => {
+                f.write_str("more projector rays than the identifier holds")
+            }
+            IdentifyError::TooManyCells => {
+                f.write_str("the lookup grid needs more cells than it holds")
+            }
+            IdentifyError::TooManyEntries => f.write_str(
+                "the epipolar segments need more grid entries than the identifier holds",
+            ),
+            IdentifyError::InvalidParameters => {
+                f.write_str("need 0 < near < far, a positive tolerance and a positive cell size")
+            }
+            IdentifyError::Geometry(id, e) => write!(f, "ray {id}: its epipolar segment: {e}"),
+        }
+    }
+}
+
+/// The result for one dot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Assignment<T> {
+    /// The dot belongs to this ray; `distance` from its segment (pixels).
+    Ray {
+        /// The ray id.
+        id: u16,
+        /// Distance of the dot from the ray's epipolar segment (pixels).
+        distance: T,
+    },
+    /// Two or more segments pass within tolerance: the two closest.
+    Ambiguous {
+        /// The closest ray.
+        first: u16,
+        /// The second closest.
+        second: u16,
+    },
+    /// Another dot of the same frame was assigned the same ray: neither is trusted.
+    Conflict {
+        /// The ray both dots claim.
+        id: u16,
+    },
+    /// No segment passes within tolerance (clutter, or a surface outside the depth range).
+    Unassigned,
+}
+
+impl<T> Assignment<T> {
+    /// The ray id if the dot was identified.
+    pub fn id(&self) -> Option<u16> {
+        match self {
+            Assignment::Ray { id, .. } => Some(*id),
+            _ => None,
+        }
+    }
+}
+
+/// One ray's epipolar polyline in pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpipolarSegment<T: RealField> {
+    /// The ray id.
+    pub id: u16,
+    /// Polyline vertices (col, row), near to far.
+    pub points: [Vector2<T>; SUBSEGMENTS + 1],
+}
+
+impl<T: RealField + Copy> EpipolarSegment<T> {
+    /// Distance (pixels) from a point to the polyline.
+    pub fn distance(&self, p: Vector2<T>) -> T {
+        let mut best = T::max_value().unwrap_or_else(|| lit(f64::MAX));
+        for pair in self.points.windows(2) {
+            best = best.min(point_segment_distance(p, pair[0], pair[1]));
+        }
+        best
+    }
+}
+
+fn point_segment_distance<T: RealField + Copy>(p: Vector2<T>, a: Vector2<T>, b: Vector2<T>) -> T {
+    let ab = b - a;
+    let len2 = ab.norm_squared();
+    let t = if len2 > T::zero() {
+        ((p - a).dot(&ab) / len2).clamp(T::zero(), T::one())
+    } else {
+        T::zero()
+    };
+    (a + ab * t - p).norm()
+}
+
+/// Dot identification by epipolar segments with a lookup grid; capacities: `R` rays, `C` cells,
+/// `E` cell entries.
+#[derive(Debug, Clone)]
+pub struct Identifier<T: RealField, const R: usize, const C: usize, const E: usize> {
+    segments: [EpipolarSegment<T>; R],
+    rays: usize,
+    tolerance: T,
+    cell: T,
+    grid_cols: usize,
+    grid_rows: usize,
+    starts: [u32; C],
+    counts: [u16; C],
+    entries: [u16; E],
+}
+
+impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identifier<T, R, C, E> {
+    /// Build the segments of every ray of `rig` over `depth`, and the lookup grid of square
+    /// cells of side `cell` pixels. `tolerance` (pixels) is the largest distance of a dot from
+    /// its ray's segment: a few σ of the centroid noise plus the calibration's image error.
+    pub fn new<S: AsRef<[ProjectorRay<T>]>>(
+        rig: &Rig<T, S>,
+        depth: DepthRange<T>,
+        tolerance: T,
+        cell: T,
+    ) -> Result<Self, IdentifyError> {
+        // Ray indices and per-cell counts are u16.
+        const { assert!(R <= u16::MAX as usize, "at most 65535 rays") };
+        let rays = rig.projector_centred().rays();
+        if rays.len() > R {
+            return Err(IdentifyError::TooManyRays);
+        }
+        let valid = depth.near > T::zero()
+            && depth.far > depth.near
+            && tolerance > T::zero()
+            && cell > T::zero();
+        if !valid {
+            return Err(IdentifyError::InvalidParameters);
+        }
+        let grid = rig.grid();
+        let grid_cols = cells_along(grid.width, cell);
+        let grid_rows = cells_along(grid.height, cell);
+        if grid_cols * grid_rows > C {
+            return Err(IdentifyError::TooManyCells);
+        }
+        let zero = EpipolarSegment {
+            id: 0,
+            points: [Vector2::zeros(); SUBSEGMENTS + 1],
+        };
+        let mut me = Self {
+            segments: [zero; R],
+            rays: rays.len(),
+            tolerance,
+            cell,
+            grid_cols,
+            grid_rows,
+            starts: [0; C],
+            counts: [0; C],
+            entries: [0; E],
+        };
+        for (k, ray) in rays.iter().enumerate() {
+            me.segments[k] = epipolar_segment(rig, ray, depth)
+                .map_err(|e| IdentifyError::Geometry(ray.id, e))?;
+        }
+        // Two passes over the cells each segment touches: count, then fill.
+        for k in 0..me.rays {
+            let segment = me.segments[k];
+            me.for_each_cell(&segment, |me, cell| me.counts[cell] += 1);
+        }
+        let mut total = 0u32;
+        for cell in 0..grid_cols * grid_rows {
+            me.starts[cell] = total;
+            total += u32::from(me.counts[cell]);
+            me.counts[cell] = 0;
+        }
+        if total as usize > E {
+            return Err(IdentifyError::TooManyEntries);
+        }
+        for k in 0..me.rays {
+            let segment = me.segments[k];
+            me.for_each_cell(&segment, |me, cell| {
+                let slot = me.starts[cell] as usize + usize::from(me.counts[cell]);
+                me.entries[slot] = k as u16;
+                me.counts[cell] += 1;
+            });
+        }
+        Ok(me)
+    }
+
+    /// Visit every grid cell whose centre lies within tolerance + half a cell diagonal of the
+    /// segment.
+    fn for_each_cell(
+        &mut self,
+        segment: &EpipolarSegment<T>,
+        mut visit: impl FnMut(&mut Self, usize),
+    ) {
+        let half = lit::<T>(0.5);
+        let reach = self.tolerance + self.cell * lit::<T>(core::f64::consts::FRAC_1_SQRT_2);
+        let (mut lo, mut hi) = (segment.points[0], segment.points[0]);
+        for p in &segment.points[1..] {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let Some((c0, r0)) = self.cell_of_clamped(lo - Vector2::repeat(reach)) else {
+            return;
+        };
+        let Some((c1, r1)) = self.cell_of_clamped(hi + Vector2::repeat(reach)) else {
+            return;
+        };
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let centre = Vector2::new(
+                    (lit::<T>(c as f64) + half) * self.cell - half,
+                    (lit::<T>(r as f64) + half) * self.cell - half,
+                );
+                if segment.distance(centre) <= reach {
+                    visit(self, r * self.grid_cols + c);
+                }
+            }
+        }
+    }
+
+    /// The grid cell of a pixel position, clamped to the grid; `None` if not finite.
+    fn cell_of_clamped(&self, p: Vector2<T>) -> Option<(usize, usize)> {
+        let half = lit::<T>(0.5);
+        let c = ((p.x + half) / self.cell).floor();
+        let r = ((p.y + half) / self.cell).floor();
+        if !(c.is_finite() && r.is_finite()) {
+            return None;
+        }
+        let clamp = |v: T, n: usize| -> usize {
+            let v = v.max(T::zero()).min(lit::<T>((n - 1) as f64));
+            // A small non-negative integer here.
+            nalgebra::try_convert::<T, f64>(v).map_or(0, |v| v as usize)
+        };
+        Some((clamp(c, self.grid_cols), clamp(r, self.grid_rows)))
+    }
+
+    /// The grid cell of a dot, `None` outside the grid.
+    fn cell_of(&self, p: Vector2<T>) -> Option<usize> {
+        let half = lit::<T>(0.5);
+        let inside = p.x >= -half
+            && p.y >= -half
+            && p.x < lit::<T>(self.grid_cols as f64) * self.cell - half
+            && p.y < lit::<T>(self.grid_rows as f64) * self.cell - half;
+        if !inside {
+            return None;
+        }
+        let (c, r) = self.cell_of_clamped(p)?;
+        Some(r * self.grid_cols + c)
+    }
+
+    /// The epipolar segments, in the projector's ray order.
+    pub fn segments(&self) -> &[EpipolarSegment<T>] {
+        &self.segments[..self.rays]
+    }
+
+    /// Total cell entries of the lookup grid (its memory use beyond the segments).
+    pub fn entries(&self) -> usize {
+        self.counts[..self.grid_cols * self.grid_rows]
+            .iter()
+            .map(|&n| usize::from(n))
+            .sum()
+    }
+
+    /// The assignment of one dot at pixel (col, row), by itself (see [`Self::identify_frame`]).
+    pub fn identify(&self, col: T, row: T) -> Assignment<T> {
+        self.nearest(Vector2::new(col, row)).0
+    }
+
+    /// Like [`Self::identify`], with the ray's index in [`Self::segments`].
+    fn nearest(&self, p: Vector2<T>) -> (Assignment<T>, usize) {
+        let Some(cell) = self.cell_of(p) else {
+            return (Assignment::Unassigned, 0);
+        };
+        let start = self.starts[cell] as usize;
+        let mut first: Option<(T, usize)> = None;
+        let mut second: Option<(T, usize)> = None;
+        for &k in &self.entries[start..start + usize::from(self.counts[cell])] {
+            let k = usize::from(k);
+            let d = self.segments[k].distance(p);
+            if d > self.tolerance {
+                continue;
+            }
+            match first {
+                Some((d1, _)) if d >= d1 => {
+                    if second.is_none_or(|(d2, _)| d < d2) {
+                        second = Some((d, k));
+                    }
+                }
+                _ => {
+                    second = first;
+                    first = Some((d, k));
+                }
+            }
+        }
+        match (first, second) {
+            (Some((_, a)), Some((_, b))) => (
+                Assignment::Ambiguous {
+                    first: self.segments[a].id,
+                    second: self.segments[b].id,
+                },
+                a,
+            ),
+            (Some((d, a)), None) => (
+                Assignment::Ray {
+                    id: self.segments[a].id,
+                    distance: d,
+                },
+                a,
+            ),
+            _ => (Assignment::Unassigned, 0),
+        }
+    }
+
+    /// Identify all dots of one frame (pixel positions (col, row)) into `out` (same length):
+    /// each dot by [`Self::identify`], then every ray claimed by more than one dot turned into
+    /// [`Assignment::Conflict`] for all of them. Returns the number identified.
+    pub fn identify_frame(&self, dots: &[(T, T)], out: &mut [Assignment<T>]) -> usize {
+        let mut claims = [0u8; R];
+        for (dot, slot) in dots.iter().zip(out.iter_mut()) {
+            let (assignment, k) = self.nearest(Vector2::new(dot.0, dot.1));
+            if let Assignment::Ray { .. } = assignment {
+                claims[k] = claims[k].saturating_add(1);
+            }
+            *slot = assignment;
+        }
+        let mut identified = 0;
+        for slot in out.iter_mut().take(dots.len()) {
+            if let Assignment::Ray { id, .. } = *slot {
+                let k = self.segments[..self.rays]
+                    .binary_search_by_key(&id, |s| s.id)
+                    .unwrap_or(0);
+                if claims[k] > 1 {
+                    *slot = Assignment::Conflict { id };
+                } else {
+                    identified += 1;
+                }
+            }
+        }
+        identified
+    }
+
+    /// Pairs of rays whose segments come within twice the tolerance of each other somewhere: the
+    /// places a dot could be ambiguous. Zero for a pattern and depth range that identify every
+    /// dot.
+    pub fn close_pairs(&self) -> usize {
+        let limit = self.tolerance + self.tolerance;
+        let mut pairs = 0;
+        for a in 0..self.rays {
+            for b in a + 1..self.rays {
+                if segments_distance(&self.segments[a], &self.segments[b]) <= limit {
+                    pairs += 1;
+                }
+            }
+        }
+        pairs
+    }
+}
+
+/// Cells of side `cell` covering `n` pixels.
+fn cells_along<T: RealField + Copy>(n: u32, cell: T) -> usize {
+    let cells = (lit::<T>(f64::from(n)) / cell).ceil();
+    nalgebra::try_convert::<T, f64>(cells).map_or(1, |c| (c as usize).max(1))
+}
+
+/// The smallest distance between two polylines (segments that do not cross: the smallest
+/// vertex-to-piece distance; crossing pieces: zero).
+fn segments_distance<T: RealField + Copy>(a: &EpipolarSegment<T>, b: &EpipolarSegment<T>) -> T {
+    let mut best = T::max_value().unwrap_or_else(|| lit(f64::MAX));
+    for pa in a.points.windows(2) {
+        for pb in b.points.windows(2) {
+            if pieces_cross(pa[0], pa[1], pb[0], pb[1]) {
+                return T::zero();
+            }
+            best = best
+                .min(point_segment_distance(pa[0], pb[0], pb[1]))
+                .min(point_segment_distance(pa[1], pb[0], pb[1]))
+                .min(point_segment_distance(pb[0], pa[0], pa[1]))
+                .min(point_segment_distance(pb[1], pa[0], pa[1]));
+        }
+    }
+    best
+}
+
+fn pieces_cross<T: RealField + Copy>(
+    a0: Vector2<T>,
+    a1: Vector2<T>,
+    b0: Vector2<T>,
+    b1: Vector2<T>,
+) -> bool {
+    let cross = |o: Vector2<T>, p: Vector2<T>, q: Vector2<T>| (p - o).perp(&(q - o));
+    let (d1, d2) = (cross(b0, b1, a0), cross(b0, b1, a1));
+    let (d3, d4) = (cross(a0, a1, b0), cross(a0, a1, b1));
+    d1 * d2 < T::zero() && d3 * d4 < T::zero()
+}
+
+/// The epipolar polyline of one ray: the camera images of its points at [`SUBSEGMENTS`] + 1
+/// depths evenly spaced over the range.
+fn epipolar_segment<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>>(
+    rig: &Rig<T, S>,
+    ray: &ProjectorRay<T>,
+    depth: DepthRange<T>,
+) -> Result<EpipolarSegment<T>, Error> {
+    let line = rig.projector_centred().ray(ray.id)?;
+    let r = rig.r_cam_world();
+    // Camera-system z along the ray: z(λ) = z0 + λ dz; the depth d means z = −d.
+    let start: Vector3<T> = r * line.point;
+    let dir: Vector3<T> = r * line.direction;
+    if dir.z.abs() < lit(1e-12) {
+        return Err(Error::DegenerateGeometry);
+    }
+    let mut points = [Vector2::zeros(); SUBSEGMENTS + 1];
+    for (k, out) in points.iter_mut().enumerate() {
+        let t = lit::<T>(k as f64 / SUBSEGMENTS as f64);
+        let d = depth.near + (depth.far - depth.near) * t;
+        let lambda = (-d - start.z) / dir.z;
+        let cam = start + dir * lambda;
+        let refined = project_camera_point(rig.inner().f, &cam)?;
+        let (col, row) = rig.grid().photo_to_pixel(rig.inner().unrefine(refined)?);
+        *out = Vector2::new(col, row);
+    }
+    Ok(EpipolarSegment { id: ray.id, points })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{InnerOrientation, PixelGrid};
+    use crate::collinearity::{Camera, ExteriorOrientation};
+    use crate::projector::Projector;
+
+    fn camera() -> Camera<f64> {
+        Camera {
+            grid: PixelGrid {
+                pixel_size: 0.045,
+                width: 768,
+                height: 512,
+                origin_col: 378.0,
+                origin_row: 252.0,
+            },
+            inner: InnerOrientation {
+                k1: 6.3e-5,
+                cx: -0.133,
+                cy: 0.208,
+                ..InnerOrientation::ideal(46.981)
+            },
+            exterior: ExteriorOrientation {
+                kappa: 0.0133,
+                phi: 0.0142,
+                omega: -0.026,
+                centre: Vector3::zeros(),
+            },
+        }
+    }
+
+    /// The projector of Table 3 (camera system); rays aimed at camera-system points at 1700 mm.
+    const PROJECTOR: [f64; 3] = [-490.304, 23.837, 56.825];
+
+    fn ray_at(id: u16, x: f64, y: f64) -> ProjectorRay<f64> {
+        let cam = camera();
+        let target = cam.exterior.camera_to_world(&Vector3::new(x, y, -1700.0));
+        ProjectorRay {
+            id,
+            direction: (target - Vector3::from(PROJECTOR)).normalize(),
+            offset: Vector3::zeros(),
+        }
+    }
+
+    fn rig(rays: &[ProjectorRay<f64>]) -> Rig<f64, &[ProjectorRay<f64>]> {
+        let cam = camera();
+        let projector = Projector::new(Vector3::from(PROJECTOR), rays).unwrap();
+        Rig::new(cam.grid, cam.inner, &cam.exterior, projector)
+    }
+
+    /// The pixel of ray `id` hitting a surface at camera distance `depth`.
+    fn dot(rays: &[ProjectorRay<f64>], id: u16, depth: f64) -> (f64, f64) {
+        let cam = camera();
+        let ray = rays.iter().find(|r| r.id == id).unwrap();
+        let r = cam.exterior.r_cam_world();
+        let (p, d) = (r * Vector3::from(PROJECTOR), r * ray.direction);
+        let world = Vector3::from(PROJECTOR) + ray.direction * ((-depth - p.z) / d.z);
+        cam.world_to_pixel(&world).unwrap()
+    }
+
+    const DEPTH: DepthRange<f64> = DepthRange {
+        near: 1550.0,
+        far: 1850.0,
+    };
+    type Small = Identifier<f64, 16, 1600, 4000>;
+
+    #[test]
+    fn identifies_within_range_only() {
+        let rays = [
+            ray_at(1, -200.0, 100.0),
+            ray_at(2, 0.0, -150.0),
+            ray_at(101, 250.0, 50.0),
+        ];
+        let ident = Small::new(&rig(&rays), DEPTH, 0.5, 16.0).unwrap();
+        assert!(ident.entries() > 3 && ident.close_pairs() == 0);
+        for id in [1, 2, 101] {
+            for depth in [1560.0, 1700.0, 1840.0] {
+                let (c, r) = dot(&rays, id, depth);
+                match ident.identify(c, r) {
+                    Assignment::Ray { id: got, distance } => {
+                        assert_eq!(got, id);
+                        // The polyline's chord error from distortion stays far below tolerance.
+                        assert!(distance < 0.02, "{distance}");
+                    }
+                    other => panic!("ray {id} at {depth}: {other:?}"),
+                }
+            }
+            let (c, r) = dot(&rays, id, 1400.0);
+            assert_eq!(
+                ident.identify(c, r),
+                Assignment::Unassigned,
+                "outside the depth range"
+            );
+        }
+        assert_eq!(
+            ident.identify(-3.0, 10.0),
+            Assignment::Unassigned,
+            "outside the image"
+        );
+    }
+
+    /// Two rays in one epipolar plane whose segments overlap: a dot where they do is ambiguous,
+    /// never guessed, and `close_pairs` reports the pair.
+    #[test]
+    fn ambiguity_is_reported() {
+        let cam = camera();
+        let a = ray_at(5, 0.0, 0.0);
+        // Ray 6 hits, at 1750 mm, the camera ray of ray 5's point at 1650 mm: one pixel, two rays.
+        let (p, r) = (Vector3::from(PROJECTOR), cam.exterior.r_cam_world());
+        let on_a = p + a.direction * ((-1650.0 - (r * p).z) / (r * a.direction).z);
+        let b = ProjectorRay {
+            id: 6,
+            direction: (on_a * (1750.0 / 1650.0) - p).normalize(),
+            offset: Vector3::zeros(),
+        };
+        let rays = [a, b, ray_at(7, 300.0, 200.0)];
+        let ident = Small::new(&rig(&rays), DEPTH, 0.5, 16.0).unwrap();
+        let (c, row) = dot(&rays, 5, 1650.0);
+        assert_eq!(
+            ident.identify(c, row),
+            Assignment::Ambiguous {
+                first: 5,
+                second: 6
+            }
+        );
+        assert_eq!(ident.close_pairs(), 1);
+    }
+
+    /// Two dots claiming one ray are both conflicts; the others stay identified.
+    #[test]
+    fn conflicts_in_a_frame() {
+        let rays = [
+            ray_at(1, -200.0, 100.0),
+            ray_at(2, 0.0, -150.0),
+            ray_at(101, 250.0, 50.0),
+        ];
+        let ident = Small::new(&rig(&rays), DEPTH, 0.5, 16.0).unwrap();
+        let dots = [
+            dot(&rays, 2, 1600.0),
+            dot(&rays, 1, 1700.0),
+            dot(&rays, 2, 1640.0),
+            (700.0, 20.0),
+        ];
+        let mut out = [Assignment::Unassigned; 4];
+        assert_eq!(ident.identify_frame(&dots, &mut out), 1);
+        assert_eq!(out[0], Assignment::Conflict { id: 2 });
+        assert_eq!(out[1].id(), Some(1));
+        assert_eq!(out[2], Assignment::Conflict { id: 2 });
+        assert_eq!(out[3], Assignment::Unassigned);
+    }
+
+    #[test]
+    fn capacities_and_parameters() {
+        let rays = [
+            ray_at(1, -200.0, 100.0),
+            ray_at(2, 0.0, -150.0),
+            ray_at(101, 250.0, 50.0),
+        ];
+        let rig = rig(&rays);
+        assert_eq!(
+            Identifier::<f64, 2, 1600, 4000>::new(&rig, DEPTH, 0.5, 16.0).err(),
+            Some(IdentifyError::TooManyRays)
+        );
+        assert_eq!(
+            Identifier::<f64, 4, 100, 4000>::new(&rig, DEPTH, 0.5, 16.0).err(),
+            Some(IdentifyError::TooManyCells)
+        );
+        assert_eq!(
+            Identifier::<f64, 4, 1600, 5>::new(&rig, DEPTH, 0.5, 16.0).err(),
+            Some(IdentifyError::TooManyEntries)
+        );
+        let inverted = DepthRange {
+            near: 1850.0,
+            far: 1550.0,
+        };
+        assert_eq!(
+            Small::new(&rig, inverted, 0.5, 16.0).err(),
+            Some(IdentifyError::InvalidParameters)
+        );
+    }
+
+    /// The device's f32 identifier gives the host's f64 result.
+    #[test]
+    fn f32_matches_f64() {
+        let rays: [ProjectorRay<f64>; 3] = [
+            ray_at(1, -200.0, 100.0),
+            ray_at(2, 0.0, -150.0),
+            ray_at(101, 250.0, 50.0),
+        ];
+        let host = rig(&rays);
+        let ident64 = Small::new(&host, DEPTH, 0.5, 16.0).unwrap();
+        let c = |v: f64| v as f32;
+        let v = |x: Vector3<f64>| x.map(c);
+        let rays32 = rays.map(|r| ProjectorRay {
+            id: r.id,
+            direction: v(r.direction),
+            offset: v(r.offset),
+        });
+        let g = host.grid();
+        let grid32 = PixelGrid {
+            pixel_size: c(g.pixel_size),
+            width: g.width,
+            height: g.height,
+            origin_col: c(g.origin_col),
+            origin_row: c(g.origin_row),
+        };
+        let projector32 =
+            Projector::new(v(host.projector_centred().centre()), &rays32[..]).unwrap();
+        let device = Rig::from_centred(
+            grid32,
+            host.inner().cast::<f32>(),
+            host.r_cam_world().map(c),
+            v(host.camera_centre()),
+            projector32,
+        );
+        let ident32 = Identifier::<f32, 16, 1600, 4000>::new(
+            &device,
+            DepthRange {
+                near: 1550.0,
+                far: 1850.0,
+            },
+            0.5,
+            16.0,
+        )
+        .unwrap();
+        for id in [1, 2, 101] {
+            for depth in [1400.0, 1560.0, 1700.0, 1840.0] {
+                let (col, row) = dot(&rays, id, depth);
+                assert_eq!(
+                    ident32.identify(c(col), c(row)).id(),
+                    ident64.identify(col, row).id()
+                );
+            }
+        }
+    }
+}
