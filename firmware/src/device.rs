@@ -1,14 +1,18 @@
 //! The device: requests in, responses out. It holds the active calibration as an f32 rig centred
-//! on the camera, an upload in progress, and the calibration store.
+//! on the camera, the dot identifier built from it, an upload in progress, and the calibration
+//! store.
 
 use crate::store::{Store, StoreError};
+use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
 use deltaz_shared::projector::{Projector, ProjectorRay};
-use deltaz_shared::protocol::calibration::{decode_calibration, CalibrationHeader, WireRay};
+use deltaz_shared::protocol::calibration::{
+    decode_calibration, CalibrationHeader, IdentifyParams, WireRay,
+};
 use deltaz_shared::protocol::frame::CRC;
 use deltaz_shared::protocol::{
-    centroid_fraction_bits, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, ErrorCode,
-    PointResult, Request, RequestBody, Response, ResponseBody, MAX_BATCH, MAX_FRAME,
-    PROTOCOL_VERSION,
+    centroid_fraction_bits, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, Dot, ErrorCode,
+    IdentifiedPoint, PointResult, PointStatus, Request, RequestBody, Response, ResponseBody,
+    MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
 };
 use deltaz_shared::rig::{Method, Rig};
 use embedded_storage::nor_flash::NorFlash;
@@ -23,6 +27,10 @@ pub const MAX_CALIBRATION: usize = 16 * 1024;
 
 /// The device's rig: f32, centred on the camera (its camera centre is zero).
 pub type DeviceRig = Rig<f32, heapless::Vec<ProjectorRay<f32>, MAX_RAYS>>;
+
+/// The device's dot identifier: f32, [`MAX_RAYS`] rays, 2048 cells (768 × 512 pixels in cells
+/// of 16), 4096 cell entries; about 43 KB.
+pub type DeviceIdentifier = Identifier<f32, MAX_RAYS, 2048, 4096>;
 
 /// The board's instruments: a tick counter timing the compute (SysTick on a board) and, where
 /// the board measures it, the stack's high-water mark.
@@ -53,6 +61,38 @@ struct Active {
     rig: DeviceRig,
     method: Method,
     summary: CalibrationSummary,
+    identification: Option<IdentifyParams>,
+}
+
+impl Active {
+    /// The result for one centroid of ray `id` at pixel (col, row).
+    fn point(&self, id: u16, col: f32, row: f32) -> PointResult {
+        match self.rig.reconstruct(id, col, row, self.method) {
+            Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
+            Err(e) => PointResult::from_error(e),
+        }
+    }
+
+    /// Build `identifier` in place for this calibration (emptied when it carries no
+    /// identification).
+    fn build_identifier(&self, identifier: &mut DeviceIdentifier) -> Result<(), ErrorCode> {
+        let Some(p) = self.identification else {
+            identifier.clear();
+            return Ok(());
+        };
+        let depth = DepthRange {
+            near: p.near,
+            far: p.far,
+        };
+        identifier
+            .rebuild(&self.rig, depth, p.tolerance, p.cell)
+            .map_err(|e| match e {
+                IdentifyError::InvalidParameters | IdentifyError::Geometry(..) => {
+                    ErrorCode::InvalidCalibration
+                }
+                _ => ErrorCode::IdentifierCapacity,
+            })
+    }
 }
 
 /// An upload in progress.
@@ -67,6 +107,7 @@ pub struct Device<F, P> {
     store: Store<F>,
     probe: P,
     active: Option<Active>,
+    identifier: DeviceIdentifier,
     upload: Option<Upload>,
     staging: [u8; MAX_CALIBRATION],
     stats: DeviceStats,
@@ -80,6 +121,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             store,
             probe,
             active: None,
+            identifier: DeviceIdentifier::empty(),
             upload: None,
             staging: [0; MAX_CALIBRATION],
             stats: DeviceStats {
@@ -93,6 +135,14 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             reset: false,
         };
         device.active = device.load_stored();
+        let built = match &device.active {
+            Some(active) => active.build_identifier(&mut device.identifier),
+            None => Ok(()),
+        };
+        // A stored calibration was checked at its commit, identifier included.
+        if built.is_err() {
+            device.active = None;
+        }
         device
     }
 
@@ -120,6 +170,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             RequestBody::UploadChunk { offset, data } => self.chunk(offset as usize, &data),
             RequestBody::UploadCommit => self.commit(),
             RequestBody::Compute { centroids } => self.compute(&centroids),
+            RequestBody::Identify { dots } => self.identify(&dots),
             RequestBody::Stats => {
                 self.stats.stack_peak = self.probe.stack_peak();
                 Ok(ResponseBody::Stats(self.stats))
@@ -190,12 +241,27 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         if CRC.checksum(blob) != upload.crc {
             return Err(ErrorCode::UploadCrc);
         }
-        // Validate completely before touching the flash.
+        // Validate completely before touching the flash, the identifier included (built in
+        // place; on failure rebuilt for the calibration that stays active).
         let mut active = activate(blob, 0).ok_or(ErrorCode::InvalidCalibration)?;
-        let stored = self.store.save(blob).map_err(|e| match e {
-            StoreError::TooLarge => ErrorCode::TooLarge,
-            _ => ErrorCode::Storage,
-        })?;
+        let stored = active
+            .build_identifier(&mut self.identifier)
+            .and_then(|()| {
+                self.store.save(blob).map_err(|e| match e {
+                    StoreError::TooLarge => ErrorCode::TooLarge,
+                    _ => ErrorCode::Storage,
+                })
+            });
+        let stored = match stored {
+            Ok(stored) => stored,
+            Err(e) => {
+                if let Some(old) = &self.active {
+                    // It was built once already with these parameters.
+                    let _ = old.build_identifier(&mut self.identifier);
+                }
+                return Err(e);
+            }
+        };
         active.summary.generation = stored.generation;
         let summary = active.summary;
         self.active = Some(active);
@@ -213,19 +279,64 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             .iter()
             .map(|c| {
                 let (col, row) = c.pixel::<f32>(bits);
-                match active.rig.reconstruct(c.id, col, row, active.method) {
-                    Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
-                    Err(e) => PointResult::from_error(e),
-                }
+                active.point(c.id, col, row)
             })
             .collect();
-        self.stats.last_compute_ticks = self.probe.since(start);
-        self.stats.last_compute_points = centroids.len() as u16;
-        self.stats.points = self.stats.points.wrapping_add(centroids.len() as u32);
+        let fingerprint = active.summary.fingerprint;
+        self.count_compute(start, centroids.len());
         Ok(ResponseBody::Points {
-            fingerprint: active.summary.fingerprint,
+            fingerprint,
             points,
         })
+    }
+
+    /// Identify unlabelled dots (the whole batch is one camera frame, so two dots claiming one
+    /// ray are both conflicts), then compute the identified ones.
+    fn identify(&mut self, dots: &[Dot]) -> Result<ResponseBody, ErrorCode> {
+        let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
+        if active.identification.is_none() {
+            return Err(ErrorCode::NoIdentification);
+        }
+        let bits = active.summary.centroid_bits;
+        let start = self.probe.now();
+        let mut pixels = [(0.0f32, 0.0f32); MAX_BATCH];
+        for (pixel, dot) in pixels.iter_mut().zip(dots) {
+            *pixel = dot.pixel(bits);
+        }
+        let pixels = &pixels[..dots.len()];
+        let mut found = [Assignment::Unassigned; MAX_BATCH];
+        let found = &mut found[..dots.len()];
+        self.identifier.identify_frame(pixels, found);
+        let failed = |id, status| IdentifiedPoint {
+            id,
+            result: PointResult::Failed(status),
+        };
+        let points = pixels
+            .iter()
+            .zip(found.iter())
+            .map(|(&(col, row), assignment)| match *assignment {
+                Assignment::Ray { id, .. } => IdentifiedPoint {
+                    id,
+                    result: active.point(id, col, row),
+                },
+                Assignment::Ambiguous { first, .. } => failed(first, PointStatus::Ambiguous),
+                Assignment::Conflict { id } => failed(id, PointStatus::Conflict),
+                Assignment::Unassigned => failed(0, PointStatus::Unassigned),
+            })
+            .collect();
+        let fingerprint = active.summary.fingerprint;
+        self.count_compute(start, dots.len());
+        Ok(ResponseBody::Identified {
+            fingerprint,
+            points,
+        })
+    }
+
+    /// Count a compute of `points` points that began at tick `start`.
+    fn count_compute(&mut self, start: u32, points: usize) {
+        self.stats.last_compute_ticks = self.probe.since(start);
+        self.stats.last_compute_points = points as u16;
+        self.stats.points = self.stats.points.wrapping_add(points as u32);
     }
 
     fn load_stored(&mut self) -> Option<Active> {
@@ -255,6 +366,7 @@ fn activate(blob: &[u8], generation: u32) -> Option<Active> {
         r_cam_world,
         camera_centre,
         projector_centre,
+        identification,
         ..
     } = header;
     let numbers = [grid.pixel_size, grid.origin_col, grid.origin_row]
@@ -262,7 +374,8 @@ fn activate(blob: &[u8], generation: u32) -> Option<Active> {
         .chain([
             inner.f, inner.cx, inner.cy, inner.k1, inner.k2, inner.k3, inner.p1, inner.p2,
         ])
-        .chain(r_cam_world);
+        .chain(r_cam_world)
+        .chain(identification.map_or([0.0; 4], |p| [p.near, p.far, p.tolerance, p.cell]));
     let finite =
         numbers.into_iter().all(f32::is_finite) && camera_centre.iter().all(|c| c.is_finite());
     if !finite || grid.pixel_size <= 0.0 || inner.f <= 0.0 {
@@ -287,5 +400,6 @@ fn activate(blob: &[u8], generation: u32) -> Option<Active> {
         rig,
         method: method.into(),
         summary,
+        identification,
     })
 }

@@ -9,6 +9,8 @@ use crate::reconstruct::ReconstructedPoint;
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::collinearity::project_camera_point;
+use deltaz_shared::protocol::calibration::IdentifyParams;
+use deltaz_shared::protocol::{PointStatus, MAX_BATCH};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -92,11 +94,17 @@ pub fn load_system(path: &Path) -> Result<(SystemRig, u64)> {
     Ok((rig, fingerprint))
 }
 
-/// Upload `system` to `device` and say so.
-fn upload_to(device: &mut AnyDevice, system: &Path, method: Method) -> Result<u64> {
+/// Upload `system` to `device` (with the parameters to identify unlabelled dots, if given) and
+/// say so.
+fn upload_to(
+    device: &mut AnyDevice,
+    system: &Path,
+    method: Method,
+    identification: Option<IdentifyParams>,
+) -> Result<u64> {
     let (rig, fingerprint) = load_system(system)?;
     let s = device
-        .upload_with(&rig, fingerprint, method)
+        .upload_identifying(&rig, fingerprint, method, identification)
         .with_context(|| format!("uploading {}", system.display()))?;
     eprintln!(
         "uploaded {} ({} rays): fingerprint {:016x} read back, generation {}",
@@ -109,9 +117,14 @@ fn upload_to(device: &mut AnyDevice, system: &Path, method: Method) -> Result<u6
 }
 
 /// `deltaz device upload system.json`.
-pub fn upload(args: &LinkArgs, system: &Path, method: Method) -> Result<()> {
+pub fn upload(
+    args: &LinkArgs,
+    system: &Path,
+    method: Method,
+    identification: Option<IdentifyParams>,
+) -> Result<()> {
     let mut device = connect(args)?;
-    upload_to(&mut device, system, method)?;
+    upload_to(&mut device, system, method, identification)?;
     if args.port.is_none() {
         eprintln!(
             "note: the in-process and QEMU devices live only as long as this command; \
@@ -149,6 +162,10 @@ pub struct StreamArgs {
     pub csv: Option<PathBuf>,
     /// Intersection method for an upload.
     pub method: Method,
+    /// Send the dots without ids: the device identifies them.
+    pub identify: bool,
+    /// The depth range and tolerance the device identifies with (part of an upload).
+    pub identification: Option<IdentifyParams>,
 }
 
 /// One camera frame: its image label and centroids `(ray id, col, row)`.
@@ -162,7 +179,7 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
         match device.expect_calibration(fingerprint) {
             Ok(_) => {}
             Err(DeviceError::Fingerprint { .. }) if args.link.port.is_none() => {
-                upload_to(&mut device, system, args.method)?;
+                upload_to(&mut device, system, args.method, args.identification)?;
             }
             Err(e) => return Err(e).context(
                 "the device does not hold this system's calibration: run `deltaz device upload`",
@@ -199,9 +216,22 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
     let mut shown = Instant::now();
     let (mut points, mut failed, mut csv) =
         (Vec::new(), 0usize, String::from("image,point,X,Y,Z,miss\n"));
+    let mut unidentified = 0usize;
     for (image, frame) in &frames {
-        let results = device.compute(frame)?;
-        for (&(id, _, _), r) in frame.iter().zip(results) {
+        let results = if args.identify {
+            if frame.len() > MAX_BATCH {
+                bail!(
+                    "{image}: {} dots, the device identifies at most {MAX_BATCH} per frame",
+                    frame.len()
+                );
+            }
+            let dots: Vec<(f64, f64)> = frame.iter().map(|&(_, col, row)| (col, row)).collect();
+            device.identify(&dots)?
+        } else {
+            let results = device.compute(frame)?;
+            frame.iter().map(|&(id, _, _)| id).zip(results).collect()
+        };
+        for (id, r) in results {
             match r {
                 Ok(WorldPoint { point, miss }) => {
                     csv += &format!("{image},{id},{},{},{},{miss}\n", point.x, point.y, point.z);
@@ -212,20 +242,26 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
                         sigma: None,
                     });
                 }
+                Err(PointStatus::Unassigned | PointStatus::Ambiguous | PointStatus::Conflict) => {
+                    unidentified += 1
+                }
                 Err(_) => failed += 1,
             }
         }
         if shown.elapsed() > Duration::from_millis(500) {
             shown = Instant::now();
-            let n = points.len() + failed;
+            let n = points.len() + failed + unidentified;
             eprint!(
                 "\r{n} points, {:.0} points/s",
                 n as f64 / start.elapsed().as_secs_f64()
             );
         }
     }
-    let n = points.len() + failed;
+    let n = points.len() + failed + unidentified;
     let (sent, received) = device.byte_counts();
+    if args.identify {
+        eprintln!("\r{unidentified} dots not identified (unassigned, ambiguous or conflicts)");
+    }
     eprintln!(
         "\r{n} points in {} frames, {:.0} points/s, {:.2} bytes per point on the link, {failed} without a point",
         frames.len(),

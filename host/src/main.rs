@@ -197,6 +197,8 @@ enum DeviceWhat {
         /// Intersection on the device.
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
+        #[command(flatten)]
+        identification: DeviceIdentifyArgs,
     },
     /// Stream centroids (an observations CSV, one frame per image, or simulated frames) through
     /// the device into PLY and/or CSV, with a live points/s figure.
@@ -219,7 +221,41 @@ enum DeviceWhat {
         /// Intersection on the device when uploading.
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
+        /// Send the dots without their ray ids: the device identifies them (its calibration
+        /// needs a depth range: --near/--far here when uploading, or at `device upload`).
+        #[arg(long)]
+        identify: bool,
+        #[command(flatten)]
+        identification: DeviceIdentifyArgs,
     },
+}
+
+/// How the device identifies unlabelled dots (part of the uploaded calibration).
+#[derive(clap::Args)]
+struct DeviceIdentifyArgs {
+    /// Nearest surface distance from the camera along its axis (mm), for identifying dots.
+    #[arg(long, requires = "far")]
+    near: Option<f32>,
+    /// Farthest surface distance from the camera along its axis (mm), for identifying dots.
+    #[arg(long, requires = "near")]
+    far: Option<f32>,
+    /// Largest distance of a dot from its ray's epipolar segment (px).
+    #[arg(long, default_value_t = 1.0)]
+    identify_tolerance: f32,
+    /// Side of the device's lookup grid cells (px).
+    #[arg(long, default_value_t = 16.0)]
+    identify_cell: f32,
+}
+
+impl DeviceIdentifyArgs {
+    fn params(&self) -> Option<deltaz_shared::protocol::calibration::IdentifyParams> {
+        Some(deltaz_shared::protocol::calibration::IdentifyParams {
+            near: self.near?,
+            far: self.far?,
+            tolerance: self.identify_tolerance,
+            cell: self.identify_cell,
+        })
+    }
 }
 
 #[derive(Subcommand)]
@@ -448,9 +484,16 @@ fn main() -> anyhow::Result<()> {
         Command::Device { link, what } => match what {
             DeviceWhat::Ports => device_cli::ports()?,
             DeviceWhat::Info => device_cli::info(&link.args())?,
-            DeviceWhat::Upload { system, method } => {
-                device_cli::upload(&link.args(), &system, method.into())?
-            }
+            DeviceWhat::Upload {
+                system,
+                method,
+                identification,
+            } => device_cli::upload(
+                &link.args(),
+                &system,
+                method.into(),
+                identification.params(),
+            )?,
             DeviceWhat::Stream {
                 system,
                 obs,
@@ -458,6 +501,8 @@ fn main() -> anyhow::Result<()> {
                 out,
                 csv,
                 method,
+                identify,
+                identification,
             } => {
                 let source = match (obs, simulate) {
                     (Some(path), _) => device_cli::StreamSource::Csv(path),
@@ -471,6 +516,8 @@ fn main() -> anyhow::Result<()> {
                     out,
                     csv,
                     method: method.into(),
+                    identify,
+                    identification: identification.params(),
                 })?
             }
         },

@@ -172,8 +172,62 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
         tolerance: T,
         cell: T,
     ) -> Result<Self, IdentifyError> {
+        let mut me = Self::empty();
+        me.rebuild(rig, depth, tolerance, cell)?;
+        Ok(me)
+    }
+
+    /// An identifier of no rays: every dot is unassigned.
+    pub fn empty() -> Self {
         // Ray indices and per-cell counts are u16.
         const { assert!(R <= u16::MAX as usize, "at most 65535 rays") };
+        let zero = EpipolarSegment {
+            id: 0,
+            points: [Vector2::zeros(); SUBSEGMENTS + 1],
+        };
+        Self {
+            segments: [zero; R],
+            rays: 0,
+            tolerance: T::one(),
+            cell: T::one(),
+            grid_cols: 0,
+            grid_rows: 0,
+            starts: [0; C],
+            counts: [0; C],
+            entries: [0; E],
+        }
+    }
+
+    /// [`Self::new`] in place, for a device that keeps its identifier where it lives instead of
+    /// moving the whole table. On failure the identifier is left empty.
+    pub fn rebuild<S: AsRef<[ProjectorRay<T>]>>(
+        &mut self,
+        rig: &Rig<T, S>,
+        depth: DepthRange<T>,
+        tolerance: T,
+        cell: T,
+    ) -> Result<(), IdentifyError> {
+        let result = self.fill(rig, depth, tolerance, cell);
+        if result.is_err() {
+            self.clear();
+        }
+        result
+    }
+
+    /// Forget every ray: every dot is unassigned.
+    pub fn clear(&mut self) {
+        self.rays = 0;
+        self.grid_cols = 0;
+        self.grid_rows = 0;
+    }
+
+    fn fill<S: AsRef<[ProjectorRay<T>]>>(
+        &mut self,
+        rig: &Rig<T, S>,
+        depth: DepthRange<T>,
+        tolerance: T,
+        cell: T,
+    ) -> Result<(), IdentifyError> {
         let rays = rig.projector_centred().rays();
         if rays.len() > R {
             return Err(IdentifyError::TooManyRays);
@@ -191,48 +245,39 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
         if grid_cols * grid_rows > C {
             return Err(IdentifyError::TooManyCells);
         }
-        let zero = EpipolarSegment {
-            id: 0,
-            points: [Vector2::zeros(); SUBSEGMENTS + 1],
-        };
-        let mut me = Self {
-            segments: [zero; R],
-            rays: rays.len(),
-            tolerance,
-            cell,
-            grid_cols,
-            grid_rows,
-            starts: [0; C],
-            counts: [0; C],
-            entries: [0; E],
-        };
+        self.rays = rays.len();
+        self.tolerance = tolerance;
+        self.cell = cell;
+        self.grid_cols = grid_cols;
+        self.grid_rows = grid_rows;
+        self.counts.fill(0);
         for (k, ray) in rays.iter().enumerate() {
-            me.segments[k] = epipolar_segment(rig, ray, depth)
+            self.segments[k] = epipolar_segment(rig, ray, depth)
                 .map_err(|e| IdentifyError::Geometry(ray.id, e))?;
         }
         // Two passes over the cells each segment touches: count, then fill.
-        for k in 0..me.rays {
-            let segment = me.segments[k];
-            me.for_each_cell(&segment, |me, cell| me.counts[cell] += 1);
+        for k in 0..self.rays {
+            let segment = self.segments[k];
+            self.for_each_cell(&segment, |me, cell| me.counts[cell] += 1);
         }
         let mut total = 0u32;
         for cell in 0..grid_cols * grid_rows {
-            me.starts[cell] = total;
-            total += u32::from(me.counts[cell]);
-            me.counts[cell] = 0;
+            self.starts[cell] = total;
+            total += u32::from(self.counts[cell]);
+            self.counts[cell] = 0;
         }
         if total as usize > E {
             return Err(IdentifyError::TooManyEntries);
         }
-        for k in 0..me.rays {
-            let segment = me.segments[k];
-            me.for_each_cell(&segment, |me, cell| {
+        for k in 0..self.rays {
+            let segment = self.segments[k];
+            self.for_each_cell(&segment, |me, cell| {
                 let slot = me.starts[cell] as usize + usize::from(me.counts[cell]);
                 me.entries[slot] = k as u16;
                 me.counts[cell] += 1;
             });
         }
-        Ok(me)
+        Ok(())
     }
 
     /// Visit every grid cell whose centre lies within tolerance + half a cell diagonal of the

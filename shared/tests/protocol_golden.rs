@@ -4,8 +4,8 @@
 use deltaz_shared::protocol::calibration::IntersectionMethod;
 use deltaz_shared::protocol::{
     decode_request, decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo,
-    DeviceStats, ErrorCode, PointResult, PointStatus, Request, RequestBody, Response, ResponseBody,
-    WireError, MAX_FRAME, PROTOCOL_VERSION,
+    DeviceStats, Dot, ErrorCode, IdentifiedPoint, PointResult, PointStatus, Request, RequestBody,
+    Response, ResponseBody, WireError, MAX_FRAME, PROTOCOL_VERSION,
 };
 
 fn requests() -> Vec<Request> {
@@ -21,15 +21,29 @@ fn requests() -> Vec<Request> {
         },
         RequestBody::UploadCommit,
         RequestBody::Compute {
-            centroids: heapless::Vec::from_slice(&[Centroid {
-                id: 102,
+            centroids: heapless::Vec::from_slice(&[
+                Centroid {
+                    id: 102,
+                    col: 0x1234,
+                    row: 0x00FF,
+                },
+                Centroid {
+                    id: 101,
+                    col: 1,
+                    row: 2,
+                },
+            ])
+            .unwrap(),
+        },
+        RequestBody::Stats,
+        RequestBody::Reset,
+        RequestBody::Identify {
+            dots: heapless::Vec::from_slice(&[Dot {
                 col: 0x1234,
                 row: 0x00FF,
             }])
             .unwrap(),
         },
-        RequestBody::Stats,
-        RequestBody::Reset,
     ];
     body.into_iter()
         .enumerate()
@@ -84,6 +98,23 @@ fn responses() -> Vec<Response> {
         }),
         ResponseBody::Resetting,
         ResponseBody::Error(ErrorCode::NoCalibration),
+        ResponseBody::Identified {
+            fingerprint: 42,
+            points: heapless::Vec::from_slice(&[
+                IdentifiedPoint {
+                    id: 203,
+                    result: PointResult::Point {
+                        xyz: [1, -2, 3],
+                        miss: 5,
+                    },
+                },
+                IdentifiedPoint {
+                    id: 0,
+                    result: PointResult::Failed(PointStatus::Unassigned),
+                },
+            ])
+            .unwrap(),
+        },
     ];
     body.into_iter()
         .enumerate()
@@ -101,20 +132,22 @@ fn responses() -> Vec<Response> {
 /// The frames of [`requests`], in order. The first by hand: postcard of Info with seq 1 is
 /// `01 00`; its CRC-32 (zlib) is 0x58c223be, little endian `be 23 c2 58`; COBS turns
 /// `01 00 be 23 c2 58` into `02 01 05 be 23 c2 58`; then the delimiter `00`.
-const REQUEST_FRAMES: [&str; 7] = [
+const REQUEST_FRAMES: [&str; 8] = [
     "02 01 05 be 23 c2 58 00",
     "0e 02 01 ac 02 ef fd b6 f5 0d 34 51 b7 c1 00",
     "07 03 02 80 08 03 01 06 03 d9 02 8c d8 00",
     "07 04 03 41 86 bc bc 00",
-    "05 05 04 01 66 04 34 12 ff 05 72 5d c1 a3 00",
+    // Ids 102 then 101: zigzag differences 204 (cc 01) and −1 (01).
+    "09 05 04 02 cc 01 34 12 ff 03 01 01 02 02 05 c5 f7 74 55 00",
     "07 06 05 f6 41 e9 67 00",
     "07 07 06 0d 21 fb e7 00",
+    "07 08 07 01 34 12 ff 05 8b 6d 29 7d 00",
 ];
 
 /// The frames of [`responses`], in order.
-const RESPONSE_FRAMES: [&str; 9] = [
-    "02 01 01 02 01 35 01 80 04 80 04 80 29 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
-     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 1c 97 8a b9 00",
+const RESPONSE_FRAMES: [&str; 10] = [
+    "02 01 01 02 01 35 02 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
+     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 da e6 80 0c 00",
     "09 02 01 ac 02 69 ef 33 66 00",
     "07 03 02 83 08 26 e7 02 2e 00",
     "11 04 03 ef 9b af cd f8 ac d1 91 01 02 d0 af 85 68 00",
@@ -122,6 +155,9 @@ const RESPONSE_FRAMES: [&str; 9] = [
     "13 06 05 0a 01 b0 22 de cc 01 b8 03 e0 d4 03 91 b8 d5 09 00",
     "07 07 06 0d 21 fb e7 00",
     "08 08 07 01 fb 2e 14 c9 00",
+    // Ids 203 (zigzag 406: 96 03) with a point, then 0 (−203: 95 03) unassigned (f3).
+    "08 09 08 2a 02 96 03 01 01 05 fe ff ff 03 01 04 05 95 03 01 01 01 01 01 01 01 01 06 f3 06 \
+     79 b3 70 00",
     "01 02 07 06 02 b5 a8 05 ca 00",
 ];
 
@@ -159,6 +195,29 @@ fn response_frames_are_golden() {
         assert_eq!(frame, &bytes(golden)[..], "{:?}", response.body);
         assert_eq!(decode_response(&mut body(frame)), Ok(response));
     }
+}
+
+/// Delta-coded ids whose sum leaves the u16 range are malformed (the CRC holds, the seq is
+/// known).
+#[test]
+fn ray_id_below_zero_is_malformed() {
+    let mut buf = [0u8; 64];
+    // seq 9, Compute, one centroid, id difference −1 from 0, col/row bytes.
+    let frame = encode_frame(&(9u32, 4u32, 1u32, -1i32, [1u8, 2, 3, 4]), &mut buf).unwrap();
+    let len = frame.len();
+    assert_eq!(
+        decode_request(&mut buf[..len - 1]),
+        Err((9, WireError::Malformed))
+    );
+    let frame = encode_frame(&(9u32, 4u32, 1u32, 65535i32, [1u8, 2, 3, 4]), &mut buf).unwrap();
+    let len = frame.len();
+    assert!(matches!(
+        decode_request(&mut buf[..len - 1]),
+        Ok(Request {
+            seq: 9,
+            body: RequestBody::Compute { .. }
+        })
+    ));
 }
 
 #[test]

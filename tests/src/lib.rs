@@ -144,3 +144,59 @@ pub mod pattern {
             .collect()
     }
 }
+
+/// Dots on a torso-like surface seen by the paper's rig (camera at the origin, the 440-dot
+/// pattern with its rows turned as in Table 4): frames for identifying unlabelled dots.
+pub mod torso {
+    use deltaz_host::simulate::images::true_rig;
+    use deltaz_host::simulate::Scenario;
+    use deltaz_host::system::SystemRig;
+    use deltaz_shared::collinearity::project_camera_point;
+
+    /// Distance of the wall behind the body from the camera (mm).
+    pub const WALL: f64 = 1740.0;
+    /// Height of the body's ridge above the wall (mm).
+    pub const HEIGHT: f64 = 110.0;
+
+    /// The paper scenario's true rig, centred on the camera.
+    pub fn rig() -> SystemRig {
+        true_rig(&Scenario::paper())
+    }
+
+    /// Distance from the camera of the surface at camera-system (x, y): a ridge along y,
+    /// centred at x = `ridge`, lower towards its ends.
+    fn depth(x: f64, y: f64, ridge: f64) -> f64 {
+        let across = (-((x - ridge) / 220.0).powi(2)).exp();
+        WALL - HEIGHT * across * (1.0 - (y / 900.0).powi(2))
+    }
+
+    /// The dots `(ray id, col, row)` the camera sees on the surface with its ridge at
+    /// x = `ridge` (mm), each moved by `jitter` pixels in a direction that varies per dot.
+    pub fn dots(rig: &SystemRig, ridge: f64, jitter: f64) -> Vec<(u16, f64, f64)> {
+        let projector = rig.projector_centred();
+        let r = rig.r_cam_world();
+        projector
+            .rays()
+            .iter()
+            .enumerate()
+            .filter_map(|(k, ray)| {
+                let line = projector.ray(ray.id).ok()?;
+                let (start, dir) = (r * line.point, r * line.direction);
+                // Fixed-point iteration on the depth: the surface is flat enough to converge.
+                let mut d = WALL;
+                let mut p = start;
+                for _ in 0..60 {
+                    p = start + dir * ((-d - start.z) / dir.z);
+                    d = depth(p.x, p.y, ridge);
+                }
+                let refined = project_camera_point(rig.inner().f, &p).ok()?;
+                let (col, row) = rig
+                    .grid()
+                    .photo_to_pixel(rig.inner().unrefine(refined).ok()?);
+                let phase = k as f64 * 2.399;
+                let (col, row) = (col + jitter * phase.cos(), row + jitter * phase.sin());
+                rig.grid().contains(col, row).then_some((ray.id, col, row))
+            })
+            .collect()
+    }
+}

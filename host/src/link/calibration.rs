@@ -2,7 +2,7 @@
 
 use deltaz_shared::projector::ProjectorRay;
 use deltaz_shared::protocol::calibration::{
-    encode_calibration, CalibrationHeader, WireRay, CALIBRATION_FORMAT,
+    encode_calibration, CalibrationHeader, IdentifyParams, WireRay, CALIBRATION_FORMAT,
 };
 use deltaz_shared::rig::{Method, Rig};
 use nalgebra::Vector3;
@@ -10,11 +10,22 @@ use nalgebra::Vector3;
 /// The calibration blob of `rig` for the device: grid, inner orientation and R cast to f32, the
 /// camera centre kept in f64, the projector centre X_p − X0 (computed in f64 by the rig) cast to
 /// f32, the rays sorted by id (as the rig holds them) with offsets only for a non-central model.
-/// `None` when there are more than 65535 rays.
+/// `None` when there are more than 65535 rays. No identification of unlabelled dots (see
+/// [`calibration_blob_identifying`]).
 pub fn calibration_blob<S: AsRef<[ProjectorRay<f64>]>>(
     rig: &Rig<f64, S>,
     fingerprint: u64,
     method: Method,
+) -> Option<Vec<u8>> {
+    calibration_blob_identifying(rig, fingerprint, method, None)
+}
+
+/// [`calibration_blob`] with the parameters the device identifies unlabelled dots with.
+pub fn calibration_blob_identifying<S: AsRef<[ProjectorRay<f64>]>>(
+    rig: &Rig<f64, S>,
+    fingerprint: u64,
+    method: Method,
+    identification: Option<IdentifyParams>,
 ) -> Option<Vec<u8>> {
     let f32s = |v: &Vector3<f64>| v.map(|c| c as f32).into();
     let projector = rig.projector_centred();
@@ -38,6 +49,7 @@ pub fn calibration_blob<S: AsRef<[ProjectorRay<f64>]>>(
         },
         camera_centre: rig.camera_centre().into(),
         projector_centre: f32s(&projector.centre()),
+        identification,
         rays: u16::try_from(rays.len()).ok()?,
     };
     let wire = rays.iter().map(|r| WireRay {

@@ -1,12 +1,13 @@
 //! The typed device client: one method per request.
 
-use super::calibration::calibration_blob;
+use super::calibration::calibration_blob_identifying;
 use super::in_process::InProcess;
 use super::Transport;
 use deltaz_shared::projector::ProjectorRay;
+use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::frame::CRC;
 use deltaz_shared::protocol::{
-    decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo, DeviceStats,
+    decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, Dot,
     ErrorCode, PointResult, PointStatus, Request, RequestBody, ResponseBody, WireError, CHUNK_SIZE,
     MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
 };
@@ -195,7 +196,19 @@ impl<T: Transport> Device<T> {
         fingerprint: u64,
         method: Method,
     ) -> Result<CalibrationSummary> {
-        let blob = calibration_blob(rig, fingerprint, method)
+        self.upload_identifying(rig, fingerprint, method, None)
+    }
+
+    /// [`Device::upload_with`], and the device identifies unlabelled dots
+    /// ([`Device::identify`]) with `identification`.
+    pub fn upload_identifying<S: AsRef<[ProjectorRay<f64>]>>(
+        &mut self,
+        rig: &Rig<f64, S>,
+        fingerprint: u64,
+        method: Method,
+        identification: Option<IdentifyParams>,
+    ) -> Result<CalibrationSummary> {
+        let blob = calibration_blob_identifying(rig, fingerprint, method, identification)
             .ok_or(DeviceError::Calibration("more than 65535 rays"))?;
         self.upload_blob(&blob, fingerprint)
     }
@@ -234,20 +247,21 @@ impl<T: Transport> Device<T> {
     }
 
     /// The 3D points of one or more camera frames' centroids `(ray id, col, row)` (pixels), in
-    /// order; a centroid without a point gets its status. Split into batches the device takes.
+    /// order; a centroid without a point gets its status. Split into batches the device takes,
+    /// each sent sorted by ray id (the compact form of the ids, see
+    /// `deltaz_shared::protocol::delta`).
     pub fn compute(
         &mut self,
         centroids: &[(u16, f64, f64)],
     ) -> Result<Vec<std::result::Result<WorldPoint, PointStatus>>> {
-        let calibration = match self.calibration {
-            Some(c) => c,
-            None => self.info()?.calibration.ok_or(DeviceError::NoCalibration)?,
-        };
-        let centre = Vector3::from(calibration.camera_centre);
+        let calibration = self.calibration()?;
         let mut out = Vec::with_capacity(centroids.len());
         for (b, batch) in centroids.chunks(MAX_BATCH).enumerate() {
+            let mut order: Vec<usize> = (0..batch.len()).collect();
+            order.sort_by_key(|&i| batch[i].0);
             let mut wire = heapless::Vec::new();
-            for (i, &(id, col, row)) in batch.iter().enumerate() {
+            for &i in &order {
+                let (id, col, row) = batch[i];
                 let c = Centroid::from_pixel(id, col, row, calibration.centroid_bits)
                     .ok_or(DeviceError::Centroid(b * MAX_BATCH + i))?;
                 wire.push(c)
@@ -258,25 +272,76 @@ impl<T: Transport> Device<T> {
                     fingerprint,
                     points,
                 } if points.len() == batch.len() => {
-                    if fingerprint != calibration.fingerprint {
-                        self.calibration = None;
-                        return Err(DeviceError::Fingerprint {
-                            expected: calibration.fingerprint,
-                            device: Some(fingerprint),
-                        });
+                    self.check_fingerprint(&calibration, fingerprint)?;
+                    let mut results = vec![Err(PointStatus::Degenerate); batch.len()];
+                    for (&i, p) in order.iter().zip(&points) {
+                        results[i] = world_point(&calibration, p);
                     }
-                    out.extend(points.iter().map(|p| match *p {
-                        PointResult::Point { .. } => Ok(WorldPoint {
-                            point: p.camera_centred_mm().unwrap_or_default() + centre,
-                            miss: p.miss_mm().unwrap_or_default(),
-                        }),
-                        PointResult::Failed(status) => Err(status),
-                    }));
+                    out.extend(results);
                 }
                 _ => return Err(DeviceError::Unexpected("Points")),
             }
         }
         Ok(out)
+    }
+
+    /// Unlabelled dots `(col, row)` (pixels) of one camera frame: the device identifies each
+    /// (the ray id, see [`deltaz_shared::protocol::IdentifiedPoint`] for the id of a status)
+    /// and computes its point. The calibration must carry identification parameters
+    /// ([`Device::upload_identifying`]). At most [`MAX_BATCH`] dots: a frame is one batch, since
+    /// two dots claiming one ray are found only within a batch.
+    pub fn identify(
+        &mut self,
+        dots: &[(f64, f64)],
+    ) -> Result<Vec<(u16, std::result::Result<WorldPoint, PointStatus>)>> {
+        let calibration = self.calibration()?;
+        if dots.len() > MAX_BATCH {
+            return Err(DeviceError::Device(ErrorCode::Frame(WireError::BufferFull)));
+        }
+        let mut wire = heapless::Vec::new();
+        for (i, &(col, row)) in dots.iter().enumerate() {
+            let dot = Dot::from_pixel(col, row, calibration.centroid_bits)
+                .ok_or(DeviceError::Centroid(i))?;
+            wire.push(dot)
+                .unwrap_or_else(|_| unreachable!("at most MAX_BATCH dots"));
+        }
+        match self.call(RequestBody::Identify { dots: wire })? {
+            ResponseBody::Identified {
+                fingerprint,
+                points,
+            } if points.len() == dots.len() => {
+                self.check_fingerprint(&calibration, fingerprint)?;
+                Ok(points
+                    .iter()
+                    .map(|p| (p.id, world_point(&calibration, &p.result)))
+                    .collect())
+            }
+            _ => Err(DeviceError::Unexpected("Identified")),
+        }
+    }
+
+    /// The active calibration, asked for when not known yet.
+    fn calibration(&mut self) -> Result<CalibrationSummary> {
+        match self.calibration {
+            Some(c) => Ok(c),
+            None => self.info()?.calibration.ok_or(DeviceError::NoCalibration),
+        }
+    }
+
+    /// A fingerprint in a response other than the calibration's: forget it and say so.
+    fn check_fingerprint(
+        &mut self,
+        calibration: &CalibrationSummary,
+        fingerprint: u64,
+    ) -> Result<()> {
+        if fingerprint == calibration.fingerprint {
+            return Ok(());
+        }
+        self.calibration = None;
+        Err(DeviceError::Fingerprint {
+            expected: calibration.fingerprint,
+            device: Some(fingerprint),
+        })
     }
 
     /// Counters and the ticks of the last compute.
@@ -352,6 +417,21 @@ impl<T: Transport> Device<T> {
                 return Err(DeviceError::Timeout(self.timeout));
             }
         }
+    }
+}
+
+/// A result from the device in world coordinates: the camera centre (f64) added back.
+fn world_point(
+    calibration: &CalibrationSummary,
+    p: &PointResult,
+) -> std::result::Result<WorldPoint, PointStatus> {
+    match *p {
+        PointResult::Point { .. } => Ok(WorldPoint {
+            point: p.camera_centred_mm().unwrap_or_default()
+                + Vector3::from(calibration.camera_centre),
+            miss: p.miss_mm().unwrap_or_default(),
+        }),
+        PointResult::Failed(status) => Err(status),
     }
 }
 

@@ -10,7 +10,7 @@ mod in_process;
 mod qemu;
 mod serial;
 
-pub use calibration::calibration_blob;
+pub use calibration::{calibration_blob, calibration_blob_identifying};
 pub use client::{Device, DeviceError, WorldPoint, DEFAULT_TIMEOUT};
 pub use in_process::{InProcess, InProcessFlash};
 pub use qemu::Qemu;

@@ -11,7 +11,23 @@ use crate::rig::Method;
 use serde::{Deserialize, Serialize};
 
 /// The blob format written in [`CalibrationHeader::format`].
-pub const CALIBRATION_FORMAT: u16 = 1;
+pub const CALIBRATION_FORMAT: u16 = 2;
+
+/// How the device identifies unlabelled dots (see [`crate::identify`]): it builds the epipolar
+/// segments and their lookup grid from these when it loads the calibration. The depth range is
+/// part of the calibration, not of each request, because the lookup grid depends on it and
+/// building it takes far longer than a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct IdentifyParams {
+    /// Nearest surface distance from the camera centre along its axis (mm).
+    pub near: f32,
+    /// Farthest surface distance (mm).
+    pub far: f32,
+    /// Largest distance of a dot from its ray's epipolar segment (pixels).
+    pub tolerance: f32,
+    /// Side of the lookup grid's square cells (pixels).
+    pub cell: f32,
+}
 
 /// How the device intersects the rays (see [`Method`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -59,6 +75,8 @@ pub struct CalibrationHeader {
     pub camera_centre: [f64; 3],
     /// The projector centre relative to the camera centre, X_p − X0 (mm).
     pub projector_centre: [f32; 3],
+    /// Identification of unlabelled dots, if the device should do it.
+    pub identification: Option<IdentifyParams>,
     /// The number of rays that follow.
     pub rays: u16,
 }

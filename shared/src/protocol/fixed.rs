@@ -1,5 +1,7 @@
-//! The compact fixed-point forms of a centroid (6 bytes) and of a computed point (10 bytes).
+//! The compact fixed-point forms of a dot (4 bytes), a centroid (a delta-coded id and a dot) and
+//! of a computed point (10 bytes).
 
+use super::delta::Keyed;
 use crate::Error;
 use nalgebra::{RealField, Vector3};
 use serde::{de::Error as _, Deserialize, Deserializer, Serialize, Serializer};
@@ -15,23 +17,21 @@ pub fn centroid_fraction_bits(width: u32, height: u32) -> u8 {
         .unwrap_or(0)
 }
 
-/// One observed dot: the projector ray id and its sub-pixel position. On the wire 6 bytes: id,
-/// col, row, each u16 little endian; col and row hold (pixel + 0.5) · 2^bits rounded, `bits` from
-/// [`centroid_fraction_bits`] for the calibrated sensor.
+/// A dot's sub-pixel position in fixed point: col and row hold (pixel + 0.5) · 2^bits rounded,
+/// `bits` from [`centroid_fraction_bits`] for the calibrated sensor. On the wire 4 bytes: col,
+/// row, each u16 little endian.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Centroid {
-    /// The ray id (row·100 + col of the pattern).
-    pub id: u16,
+pub struct Dot {
     /// Column in fixed point.
     pub col: u16,
     /// Row in fixed point.
     pub row: u16,
 }
 
-impl Centroid {
-    /// The centroid of a pixel position (col, row), or `None` when it is NaN or off the range
-    /// of the fixed point (−0.5 .. 65535/2^bits − 0.5).
-    pub fn from_pixel(id: u16, col: f64, row: f64, bits: u8) -> Option<Self> {
+impl Dot {
+    /// The dot at pixel position (col, row), or `None` when it is NaN or off the range of the
+    /// fixed point (−0.5 .. 65535/2^bits − 0.5).
+    pub fn from_pixel(col: f64, row: f64, bits: u8) -> Option<Self> {
         let scale = f64::from(1u32 << bits);
         let fixed = |v: f64| {
             let raw = libm::round((v + 0.5) * scale);
@@ -40,7 +40,6 @@ impl Centroid {
                 .then_some(raw as u16)
         };
         Some(Self {
-            id,
             col: fixed(col)?,
             row: fixed(row)?,
         })
@@ -53,29 +52,78 @@ impl Centroid {
         let v = |raw: u16| -> T { nalgebra::convert::<f64, T>(f64::from(raw)) / scale - half };
         (v(self.col), v(self.row))
     }
-
-    fn to_bytes(self) -> [u8; 6] {
-        let [a, b] = self.id.to_le_bytes();
-        let [c, d] = self.col.to_le_bytes();
-        let [e, f] = self.row.to_le_bytes();
-        [a, b, c, d, e, f]
-    }
 }
 
-impl Serialize for Centroid {
+impl Serialize for Dot {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        self.to_bytes().serialize(s)
+        let [a, b] = self.col.to_le_bytes();
+        let [c, d] = self.row.to_le_bytes();
+        [a, b, c, d].serialize(s)
     }
 }
 
-impl<'de> Deserialize<'de> for Centroid {
+impl<'de> Deserialize<'de> for Dot {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let [a, b, c, e, f, g] = <[u8; 6]>::deserialize(d)?;
+        let [a, b, c, e] = <[u8; 4]>::deserialize(d)?;
         Ok(Self {
-            id: u16::from_le_bytes([a, b]),
-            col: u16::from_le_bytes([c, e]),
-            row: u16::from_le_bytes([f, g]),
+            col: u16::from_le_bytes([a, b]),
+            row: u16::from_le_bytes([c, e]),
         })
+    }
+}
+
+/// One observed dot with its projector ray id. In a `Compute` request the id is delta-coded
+/// (see [`super::delta`]: one byte for ids sorted ascending) and the position follows as a
+/// [`Dot`]: 5 bytes a centroid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Centroid {
+    /// The ray id (row·100 + col of the pattern).
+    pub id: u16,
+    /// Column in fixed point (see [`Dot`]).
+    pub col: u16,
+    /// Row in fixed point (see [`Dot`]).
+    pub row: u16,
+}
+
+impl Centroid {
+    /// The centroid of a pixel position (col, row), or `None` when it is NaN or off the range
+    /// of the fixed point (see [`Dot::from_pixel`]).
+    pub fn from_pixel(id: u16, col: f64, row: f64, bits: u8) -> Option<Self> {
+        let Dot { col, row } = Dot::from_pixel(col, row, bits)?;
+        Some(Self { id, col, row })
+    }
+
+    /// The pixel position (col, row) the fixed point stands for, exact in f32 and f64.
+    pub fn pixel<T: RealField + Copy>(&self, bits: u8) -> (T, T) {
+        self.dot().pixel(bits)
+    }
+
+    /// The position without the id.
+    pub fn dot(&self) -> Dot {
+        Dot {
+            col: self.col,
+            row: self.row,
+        }
+    }
+}
+
+impl Keyed for Centroid {
+    type Rest = Dot;
+
+    fn id(&self) -> u16 {
+        self.id
+    }
+
+    fn rest(&self) -> Dot {
+        self.dot()
+    }
+
+    fn join(id: u16, dot: Dot) -> Self {
+        Self {
+            id,
+            col: dot.col,
+            row: dot.row,
+        }
     }
 }
 
@@ -88,6 +136,12 @@ pub enum PointStatus {
     Degenerate,
     /// The point lies farther than 2048 mm from the camera centre along an axis.
     OutOfRange,
+    /// Identification: no ray's epipolar segment passes within tolerance of the dot.
+    Unassigned,
+    /// Identification: two or more segments pass within tolerance (the id is the closest ray).
+    Ambiguous,
+    /// Identification: another dot of the frame was assigned the same ray (the id is that ray).
+    Conflict,
 }
 
 /// Units per millimetre of a point coordinate: 2¹² (0.244 µm).
@@ -100,11 +154,15 @@ const LIMIT: f64 = 8_388_607.0; // 2^23 − 1
 const UNKNOWN_RAY: u8 = 0xF0;
 const DEGENERATE: u8 = 0xF1;
 const OUT_OF_RANGE: u8 = 0xF2;
+const UNASSIGNED: u8 = 0xF3;
+const AMBIGUOUS: u8 = 0xF4;
+const CONFLICT: u8 = 0xF5;
 
 /// The device's answer for one centroid. On the wire 10 bytes: x, y, z as 24-bit signed little
 /// endian in units of 2⁻¹² mm *relative to the camera centre* (world axes), then one byte that is
 /// the miss distance in units of 2⁻⁸ mm (0 ..= 0xEF, saturating) or a status (0xF0 unknown ray,
-/// 0xF1 degenerate, 0xF2 out of range; the coordinates are then zero).
+/// 0xF1 degenerate, 0xF2 out of range, 0xF3 unassigned, 0xF4 ambiguous, 0xF5 conflict; the
+/// coordinates are then zero).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PointResult {
     /// A point.
@@ -179,6 +237,9 @@ impl PointResult {
                     PointStatus::UnknownRay => UNKNOWN_RAY,
                     PointStatus::Degenerate => DEGENERATE,
                     PointStatus::OutOfRange => OUT_OF_RANGE,
+                    PointStatus::Unassigned => UNASSIGNED,
+                    PointStatus::Ambiguous => AMBIGUOUS,
+                    PointStatus::Conflict => CONFLICT,
                 }
             }
         }
@@ -196,6 +257,9 @@ impl PointResult {
             UNKNOWN_RAY => status(PointStatus::UnknownRay),
             DEGENERATE => status(PointStatus::Degenerate),
             OUT_OF_RANGE => status(PointStatus::OutOfRange),
+            UNASSIGNED => status(PointStatus::Unassigned),
+            AMBIGUOUS => status(PointStatus::Ambiguous),
+            CONFLICT => status(PointStatus::Conflict),
             _ => None,
         }
     }
@@ -211,6 +275,35 @@ impl<'de> Deserialize<'de> for PointResult {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         Self::from_bytes(<[u8; 10]>::deserialize(d)?)
             .ok_or_else(|| D::Error::custom("unknown point status"))
+    }
+}
+
+/// The device's answer for one unlabelled dot: the ray it was identified as and its point, or a
+/// status. The id is the ray (a point, or a reconstruction status), the closest ray
+/// ([`PointStatus::Ambiguous`]), the ray two dots claim ([`PointStatus::Conflict`]), or 0
+/// ([`PointStatus::Unassigned`]). On the wire the delta-coded id (see [`super::delta`]) and the
+/// 10 bytes of the [`PointResult`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct IdentifiedPoint {
+    /// The ray id (see above).
+    pub id: u16,
+    /// The point or the status.
+    pub result: PointResult,
+}
+
+impl Keyed for IdentifiedPoint {
+    type Rest = PointResult;
+
+    fn id(&self) -> u16 {
+        self.id
+    }
+
+    fn rest(&self) -> PointResult {
+        self.result
+    }
+
+    fn join(id: u16, result: PointResult) -> Self {
+        Self { id, result }
     }
 }
 
@@ -258,6 +351,10 @@ mod tests {
         assert_eq!(wide.miss_mm(), Some(f64::from(MISS_SATURATED) / 256.0));
         assert_eq!(
             PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF5]),
+            Some(PointResult::Failed(PointStatus::Conflict))
+        );
+        assert_eq!(
+            PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF6]),
             None
         );
     }

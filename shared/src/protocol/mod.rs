@@ -15,6 +15,7 @@
 //! | `Compute { centroids }` | `Points { fingerprint, points }` (one [`PointResult`] per centroid, in order) |
 //! | `Stats` | `Stats(DeviceStats)`: counters and the ticks of the last compute |
 //! | `Reset` | `Resetting` (then the device restarts) |
+//! | `Identify { dots }` | `Identified { fingerprint, points }` (one [`IdentifiedPoint`] per dot, in order) |
 //!
 //! Any request may instead get `Error(ErrorCode)`: a bad frame, bad state or bad parameters.
 //!
@@ -22,29 +23,37 @@
 //! See [`frame`]: `COBS(postcard(message) ‖ CRC-32(postcard bytes), little endian) ‖ 0x00`.
 //!
 //! # Compact per-point forms
-//! A centroid is 6 bytes (id, col, row as u16 fixed point, see [`Centroid`]); a result is 10 bytes
-//! (three 24-bit coordinates relative to the camera centre in units of 2⁻¹² mm and a miss/status
-//! byte, see [`PointResult`]). With the frame overhead a 440-dot frame costs 16.1 bytes per point
-//! for request and response together.
+//! A labelled centroid is 5 bytes: its ray id as the difference to the previous centroid's id
+//! (a zigzag varint, one byte when the batch is sorted by id; see [`delta`]) and col, row as u16
+//! fixed point ([`Dot`], [`Centroid`]). A result is 10 bytes (three 24-bit coordinates relative to
+//! the camera centre in units of 2⁻¹² mm and a miss/status byte, see [`PointResult`]). With the
+//! frame overhead a 440-dot frame costs 15.1 bytes per point for request and response together.
+//!
+//! An unlabelled dot ([`RequestBody::Identify`]) is 4 bytes; its answer ([`IdentifiedPoint`]) is
+//! the delta-coded id of the ray the device identified (1-3 bytes: the dots come in image order)
+//! and the 10-byte result. The device identifies with [`crate::identify`] (f32), its lookup grid
+//! built when the calibration is loaded, over the depth range and tolerance the calibration
+//! carries ([`calibration::IdentifyParams`]).
 
 pub mod calibration;
+pub mod delta;
 pub mod fixed;
 pub mod frame;
 
-pub use fixed::{centroid_fraction_bits, Centroid, PointResult, PointStatus};
+pub use fixed::{centroid_fraction_bits, Centroid, Dot, IdentifiedPoint, PointResult, PointStatus};
 pub use frame::{decode_request, decode_response, encode_frame, WireError};
 
 use serde::{Deserialize, Serialize};
 
 /// The protocol version reported in [`DeviceInfo`]; a change of the wire format increments it.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 /// The most centroids in one `Compute` request.
 pub const MAX_BATCH: usize = 512;
 /// The most bytes in one upload chunk.
 pub const CHUNK_SIZE: usize = 1024;
-/// The longest encoded frame either end sends or accepts, delimiter included: a full `Points`
-/// response (10 bytes per point) plus headers, CRC and COBS overhead.
-pub const MAX_FRAME: usize = 5 * 1024 + 128;
+/// The longest encoded frame either end sends or accepts, delimiter included: a full
+/// `Identified` response (at most 13 bytes per point) plus headers, CRC and COBS overhead.
+pub const MAX_FRAME: usize = 13 * MAX_BATCH + 128;
 
 /// A request from the host.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -80,17 +89,24 @@ pub enum RequestBody {
     UploadCommit,
     /// One camera frame's centroids.
     Compute {
-        /// Up to [`MAX_BATCH`] centroids.
+        /// Up to [`MAX_BATCH`] centroids; their ids delta-coded on the wire (see [`delta`]).
+        #[serde(with = "delta")]
         centroids: heapless::Vec<Centroid, MAX_BATCH>,
     },
     /// Counters and the timing of the last compute.
     Stats,
     /// Restart the device (the stored calibration is loaded again at boot).
     Reset,
+    /// One camera frame's dots without ray ids: the device identifies them (epipolar segments,
+    /// see [`crate::identify`]) and computes the points.
+    Identify {
+        /// Up to [`MAX_BATCH`] dots.
+        dots: heapless::Vec<Dot, MAX_BATCH>,
+    },
 }
 
 /// The number of [`RequestBody`] variants: a tag at or above it is an unknown message.
-pub const REQUEST_KINDS: u32 = 7;
+pub const REQUEST_KINDS: u32 = 8;
 
 /// A response from the device.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -138,6 +154,14 @@ pub enum ResponseBody {
     Resetting,
     /// The request failed.
     Error(ErrorCode),
+    /// The identified points of one `Identify` request, in the order of its dots.
+    Identified {
+        /// The fingerprint of the calibration that identified and computed them.
+        fingerprint: u64,
+        /// One result per dot; the ids delta-coded on the wire (see [`delta`]).
+        #[serde(with = "delta")]
+        points: heapless::Vec<IdentifiedPoint, MAX_BATCH>,
+    },
 }
 
 /// The device's description of itself.
@@ -213,6 +237,11 @@ pub enum ErrorCode {
     InvalidCalibration,
     /// The calibration store failed to write or verify; the previous calibration stays active.
     Storage,
+    /// `Identify` with a calibration that carries no identification parameters.
+    NoIdentification,
+    /// The calibration's identification parameters need a larger lookup grid than the device
+    /// holds (use a smaller depth range or tolerance).
+    IdentifierCapacity,
 }
 
 impl core::fmt::Display for ErrorCode {
@@ -227,6 +256,12 @@ impl core::fmt::Display for ErrorCode {
             ErrorCode::UploadCrc => "the uploaded bytes do not match the announced CRC",
             ErrorCode::InvalidCalibration => "the uploaded blob is not a valid calibration",
             ErrorCode::Storage => "the calibration store failed; the previous one stays active",
+            ErrorCode::NoIdentification => {
+                "the calibration carries no depth range for identifying dots"
+            }
+            ErrorCode::IdentifierCapacity => {
+                "the depth range and tolerance need a larger lookup grid than the device holds"
+            }
         })
     }
 }
