@@ -115,9 +115,11 @@ pub struct Device<F, P> {
 }
 
 impl<F: NorFlash, P: Probe> Device<F, P> {
-    /// Boot: load the newest valid calibration from the store, if any.
-    pub fn boot(store: Store<F>, probe: P) -> Self {
-        let mut device = Self {
+    /// A device holding no calibration yet: [`Device::load`] it where it will live (see
+    /// [`crate::server::Server::boot`]), since the device is large (the staging buffer, the ray
+    /// table, the identifier) and every move of it costs stack.
+    pub(crate) fn new(store: Store<F>, probe: P) -> Self {
+        Self {
             store,
             probe,
             active: None,
@@ -133,17 +135,21 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
                 stack_peak: 0,
             },
             reset: false,
-        };
-        device.active = device.load_stored();
-        let built = match &device.active {
-            Some(active) => active.build_identifier(&mut device.identifier),
+        }
+    }
+
+    /// Boot: load the newest valid calibration from the store, if any, and build its
+    /// identifier in place.
+    pub(crate) fn load(&mut self) {
+        self.active = self.load_stored();
+        let built = match &self.active {
+            Some(active) => active.build_identifier(&mut self.identifier),
             None => Ok(()),
         };
         // A stored calibration was checked at its commit, identifier included.
         if built.is_err() {
-            device.active = None;
+            self.active = None;
         }
-        device
     }
 
     /// Whether a `Reset` was answered: the board should restart now.

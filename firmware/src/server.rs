@@ -11,6 +11,7 @@
 //! | a request | the device's response |
 
 use crate::device::{Device, Probe};
+use crate::store::Store;
 use deltaz_shared::protocol::{
     decode_request, encode_frame, ErrorCode, Response, ResponseBody, WireError, MAX_FRAME,
 };
@@ -27,15 +28,17 @@ pub struct Server<F, P> {
 }
 
 impl<F: NorFlash, P: Probe> Server<F, P> {
-    /// Serve `device`.
-    pub fn new(device: Device<F, P>) -> Self {
-        Self {
-            device,
+    /// Boot a device on `store` (loading its newest valid calibration) and serve it.
+    pub fn boot(store: Store<F>, probe: P) -> Self {
+        let mut server = Self {
+            device: Device::new(store, probe),
             rx: [0; MAX_FRAME],
             rx_len: 0,
             overflow: false,
             tx: [0; MAX_FRAME],
-        }
+        };
+        server.device.load();
+        server
     }
 
     /// The device.

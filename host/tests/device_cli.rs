@@ -46,7 +46,7 @@ fn points(path: &Path) -> HashMap<(String, String), [f64; 3]> {
 fn info_and_link_errors() {
     let info = ok(&["device", "info"]);
     assert!(
-        info.contains("protocol 1") && info.contains("no calibration"),
+        info.contains("protocol 2") && info.contains("no calibration"),
         "{info}"
     );
     let absent = err(&["device", "info", "--port", "/dev/deltaz-none"]);
@@ -135,4 +135,36 @@ fn stream_matches_reconstruct() {
             .len()
             > 1000
     );
+    // Unlabelled: the device identifies the dots of the plate Z = 0 (about 1843 mm from the
+    // camera) and gives every point the labelled stream gives, under the same ray id.
+    let system = p("system.json");
+    let stream = |extra: &[&str], csv: &str| {
+        let mut args = vec!["device", "stream", "--system", &system];
+        args.extend(["--simulate", "1", "--csv", csv]);
+        args.extend(extra);
+        ok(&args)
+    };
+    let identified = stream(
+        &["--identify", "--near", "1780", "--far", "1900"],
+        &p("identified.csv"),
+    );
+    assert!(
+        identified.contains("0 dots not identified") && identified.contains("440 points"),
+        "{identified}"
+    );
+    stream(&[], &p("labelled.csv"));
+    assert_eq!(
+        points(&dir.path().join("identified.csv")),
+        points(&dir.path().join("labelled.csv"))
+    );
+    let refused = err(&[
+        "device",
+        "stream",
+        "--system",
+        &p("system.json"),
+        "--simulate",
+        "1",
+        "--identify",
+    ]);
+    assert!(refused.contains("no depth range"), "{refused}");
 }

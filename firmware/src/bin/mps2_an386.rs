@@ -15,7 +15,7 @@
 mod board {
     use cortex_m::peripheral::SCB;
     use cortex_m_rt::entry;
-    use deltaz_firmware::device::{Device, MAX_CALIBRATION};
+    use deltaz_firmware::device::MAX_CALIBRATION;
     use deltaz_firmware::probe::CortexProbe;
     use deltaz_firmware::server::Server;
     use deltaz_firmware::store::{Store, HEADER};
@@ -170,7 +170,7 @@ mod board {
         let probe = cortex_m::Peripherals::take().map(|p| CortexProbe::start(p.SYST));
         let store = Store::new(RegionFlash, [(0, SLOT), (SLOT, 2 * SLOT)]);
         if let (Some(probe), Ok(store)) = (probe, store) {
-            let mut server = Server::new(Device::boot(store, probe));
+            let mut server = Server::boot(store, probe);
             let Ok(()) = server.serve(&mut uart);
         }
         SCB::sys_reset()

@@ -11,7 +11,6 @@
 
 use cortex_m::peripheral::SCB;
 use cortex_m_rt::entry;
-use deltaz_firmware::device::Device;
 use deltaz_firmware::probe::CortexProbe;
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::Store;
@@ -116,7 +115,7 @@ fn main() -> ! {
         let store = Store::new(Flash(LockedFlash::new(dp.FLASH)), [SLOT_A, SLOT_B]);
         if let (Ok(serial), Ok(store)) = (serial, store) {
             let probe = CortexProbe::start(cp.SYST);
-            let mut server = Server::new(Device::boot(store, probe));
+            let mut server = Server::boot(store, probe);
             let _ = server.serve(&mut Vcp(serial));
         }
     }

@@ -1,7 +1,7 @@
 //! The firmware's logic in this process, behind the same framing as a real device.
 
 use super::Transport;
-use deltaz_firmware::device::{Device, NoProbe, MAX_CALIBRATION};
+use deltaz_firmware::device::{NoProbe, MAX_CALIBRATION};
 use deltaz_firmware::ram_flash::RamFlash;
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::{Store, HEADER};
@@ -44,7 +44,7 @@ impl InProcess {
 fn boot(flash: InProcessFlash) -> Box<Server<InProcessFlash, NoProbe>> {
     let slots = [(0, SLOT as u32), (SLOT as u32, 2 * SLOT as u32)];
     let store = Store::new(flash, slots).unwrap_or_else(|_| unreachable!("a fixed valid layout"));
-    Box::new(Server::new(Device::boot(store, NoProbe)))
+    Box::new(Server::boot(store, NoProbe))
 }
 
 impl InProcess {
