@@ -695,6 +695,21 @@ mod tests {
             Small::new(&rig, inverted, 0.5, 16.0).err(),
             Some(IdentifyError::InvalidParameters)
         );
+        // In place: a failed rebuild leaves no rays; a good one equals a new identifier.
+        let mut ident = Box::new(Small::new(&rig, DEPTH, 0.5, 16.0).unwrap());
+        let (c, r) = dot(&rays, 2, 1700.0);
+        assert_eq!(ident.identify(c, r).id(), Some(2));
+        assert_eq!(
+            ident.rebuild(&rig, inverted, 0.5, 16.0),
+            Err(IdentifyError::InvalidParameters)
+        );
+        assert_eq!((ident.segments().len(), ident.entries()), (0, 0));
+        assert_eq!(ident.identify(c, r), Assignment::Unassigned);
+        ident.rebuild(&rig, DEPTH, 0.5, 16.0).unwrap();
+        let fresh = Small::new(&rig, DEPTH, 0.5, 16.0).unwrap();
+        assert_eq!(ident.segments(), fresh.segments());
+        assert_eq!(ident.entries(), fresh.entries());
+        assert_eq!(ident.identify(c, r), fresh.identify(c, r));
     }
 
     /// The device's f32 identifier gives the host's f64 result.

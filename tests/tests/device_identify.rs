@@ -3,11 +3,11 @@
 //! within 1 µm; in-process and over QEMU (the real firmware binary), with the instructions per
 //! point under `-icount shift=0`.
 
-use deltaz_host::link::{Device, Qemu, Transport, WorldPoint};
+use deltaz_host::link::{Device, DeviceError, Qemu, Transport, WorldPoint};
 use deltaz_host::system::SystemRig;
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
 use deltaz_shared::protocol::calibration::IdentifyParams;
-use deltaz_shared::protocol::{Dot, PointStatus};
+use deltaz_shared::protocol::{Dot, ErrorCode, PointStatus};
 use deltaz_shared::rig::Method;
 use deltaz_tests::firmware_elf;
 use deltaz_tests::torso::{self, HEIGHT, WALL};
@@ -152,7 +152,25 @@ fn run<T: Transport>(device: &mut Device<T>, rig: &SystemRig) -> Vec<Answer> {
 fn in_process_device_identifies_like_the_host() {
     let rig = torso::rig();
     let mut device = Device::in_process();
-    run(&mut device, &rig);
+    let answers = run(&mut device, &rig);
+    // A depth range the device's lookup grid cannot hold is refused at the commit, and the
+    // calibration and identifier before it stay active.
+    let wide = IdentifyParams {
+        near: 500.0,
+        far: 5000.0,
+        tolerance: 6.0,
+        ..PARAMS
+    };
+    let refused = device
+        .upload_identifying(&rig, FINGERPRINT + 2, Method::ClosestApproach, Some(wide))
+        .unwrap_err();
+    assert!(
+        matches!(refused, DeviceError::Device(ErrorCode::IdentifierCapacity)),
+        "{refused}"
+    );
+    device.expect_calibration(FINGERPRINT).unwrap();
+    let (_, pixels) = frame(&rig, -40.0);
+    assert_eq!(device.identify(&pixels).unwrap(), answers[0]);
     // Without identification parameters the device refuses, and says why.
     device.upload(&rig, FINGERPRINT + 1).unwrap();
     let err = device.identify(&[(100.0, 100.0)]).unwrap_err();
