@@ -1,41 +1,31 @@
 //! The boot-time smoke computation: one intersection on the paper's rig (Tables 1-4), so a board
 //! shows at once that the shared model runs on it.
 
-use deltaz_shared::camera::{InnerOrientation, PixelGrid};
-use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
+use deltaz_shared::camera::PixelGrid;
+use deltaz_shared::collinearity::Camera;
+use deltaz_shared::paper::{
+    table2_exterior, table4_direction, DC40_GRID, TABLE1_INNER, TABLE3_GLOBAL,
+};
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::rig::{Method, Rig};
 use nalgebra::{convert, Vector3};
 
-/// The id of the smoke dot: Table 4's ray 12.
+/// The id of the smoke dot, carrying Table 4's ray "12".
 pub const RAY: u16 = 12;
+
+/// Index of ray "12" in [`TABLE4`](deltaz_shared::paper::TABLE4).
+const TABLE4_RAY_12: usize = 4;
 
 /// The paper's camera: Table 1 inner orientation, Table 2's 1st-plane exterior orientation.
 pub fn paper_camera() -> Camera<f64> {
     Camera {
-        grid: PixelGrid {
-            pixel_size: 0.045,
-            width: 768,
-            height: 512,
-            origin_col: 378.0,
-            origin_row: 252.0,
-        },
-        inner: InnerOrientation {
-            cx: -0.133,
-            cy: 0.208,
-            k1: 0.000063,
-            ..InnerOrientation::ideal(46.981)
-        },
-        exterior: ExteriorOrientation {
-            kappa: 0.013301,
-            phi: 0.01418,
-            omega: -0.02600,
-            centre: Vector3::new(375.121, 364.541, 1842.675),
-        },
+        grid: DC40_GRID,
+        inner: TABLE1_INNER,
+        exterior: table2_exterior(0),
     }
 }
 
-/// The paper's rig in f64: [`paper_camera`], Table 3's projector centre and Table 4's ray 12.
+/// The paper's rig in f64: [`paper_camera`], Table 3's projector centre and Table 4's ray "12".
 pub fn paper_rig() -> Rig<f64, [ProjectorRay<f64>; 1]> {
     let Camera {
         grid,
@@ -43,11 +33,11 @@ pub fn paper_rig() -> Rig<f64, [ProjectorRay<f64>; 1]> {
         exterior,
     } = paper_camera();
     let ray = ProjectorRay {
-        id: 12,
-        direction: Vector3::new(0.23928, -0.01954, -0.97075).normalize(),
+        id: RAY,
+        direction: table4_direction(TABLE4_RAY_12),
         offset: Vector3::zeros(),
     };
-    let projector = Projector::new(Vector3::new(-114.601, 383.502, 1905.981), [ray])
+    let projector = Projector::new(Vector3::from(TABLE3_GLOBAL), [ray])
         .unwrap_or_else(|_| unreachable!("a valid one-ray table"));
     Rig::new(grid, inner, &exterior, projector)
 }

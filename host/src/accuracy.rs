@@ -21,8 +21,7 @@ use deltaz_shared::rig::Method;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
-/// The Table 4 rays "01".."23" as ids (row·100 + col).
-pub const TABLE4_IDS: [u16; 9] = [1, 2, 3, 101, 102, 103, 201, 202, 203];
+pub use crate::simulate::pattern::TABLE4_IDS;
 
 /// Step 4 for every plate image: the camera pose in the plate frame, by space resection on the
 /// plate's control points with the given inner orientation.

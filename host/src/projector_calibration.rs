@@ -586,41 +586,20 @@ mod tests {
     use super::*;
     use deltaz_shared::rotation::rotation_matrix;
 
-    const GRID: PixelGrid<f64> = PixelGrid {
-        pixel_size: 0.045,
-        width: 768,
-        height: 512,
-        origin_col: 378.0,
-        origin_row: 252.0,
-    };
+    const GRID: PixelGrid<f64> = deltaz_shared::paper::DC40_GRID;
 
     fn inner() -> InnerOrientation<f64> {
-        InnerOrientation {
-            cx: -0.133,
-            cy: 0.208,
-            k1: 0.000063,
-            ..InnerOrientation::ideal(46.981)
-        }
+        deltaz_shared::paper::TABLE1_INNER
     }
 
     /// Table 3's centre (global) and Table 4's nine rays.
     fn truth() -> (Vector3<f64>, Vec<(u16, Vector3<f64>)>) {
-        let table4 = [
-            (1, 0.09159, -0.17179),
-            (2, 0.24040, -0.16860),
-            (3, 0.38490, -0.16341),
-            (101, 0.09012, -0.02403),
-            (102, 0.23928, -0.01954),
-            (103, 0.38453, -0.01461),
-            (201, 0.08562, 0.12279),
-            (202, 0.23365, 0.12957),
-            (203, 0.37689, 0.13301),
-        ];
-        let rays = table4
-            .iter()
-            .map(|&(id, l, m)| (id, Vector3::new(l, m, -(1.0_f64 - l * l - m * m).sqrt())))
+        use crate::simulate::pattern::TABLE4_IDS;
+        use deltaz_shared::paper::{table4_direction, TABLE3_GLOBAL};
+        let rays = (0..9)
+            .map(|k| (TABLE4_IDS[k], table4_direction(k)))
             .collect();
-        (Vector3::new(-114.601, 383.502, 1905.981), rays)
+        (Vector3::from(TABLE3_GLOBAL), rays)
     }
 
     /// Table 2's poses: the rig moves towards a fixed plate (Z = 0 of the plate frame), the
@@ -781,13 +760,15 @@ mod tests {
     #[test]
     fn rays_on_one_plane_are_an_error() {
         let (centre, rays) = truth();
+        let (lost, half_lost) = (rays[4].0, rays[2].0);
         let mut imgs = images(centre, &rays, &table2(), &[0.0; 3]);
-        imgs[1].dots.retain(|d| d.id != 102);
-        imgs[2].dots.retain(|d| d.id != 102 && d.id != 3);
+        imgs[1].dots.retain(|d| d.id != lost);
+        imgs[2].dots.retain(|d| d.id != lost && d.id != half_lost);
         let err = calibrate_projector(&GRID, &inner(), &imgs, Model::Paper, 0.5).unwrap_err();
         assert!(
-            err.to_string()
-                .contains("fewer than two planes cannot be calibrated: 102"),
+            err.to_string().contains(&format!(
+                "fewer than two planes cannot be calibrated: {lost}"
+            )),
             "{err}"
         );
         let mut twice = images(centre, &rays, &table2(), &[0.0; 3]);
@@ -795,7 +776,7 @@ mod tests {
         twice[1].dots.push(dup);
         let err = calibrate_projector(&GRID, &inner(), &twice, Model::Paper, 0.5).unwrap_err();
         assert!(
-            format!("{err:#}").contains("ray 1 is observed twice"),
+            format!("{err:#}").contains(&format!("ray {} is observed twice", dup.id)),
             "{err:#}"
         );
     }

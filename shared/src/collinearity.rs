@@ -97,26 +97,11 @@ mod tests {
 
     #[test]
     fn projection_and_ray_agree() {
+        use crate::paper::{table2_exterior, DC40_GRID, TABLE1_INNER};
         let cam = Camera {
-            grid: PixelGrid {
-                pixel_size: 0.045,
-                width: 768,
-                height: 512,
-                origin_col: 378.0,
-                origin_row: 252.0,
-            },
-            inner: InnerOrientation {
-                k1: 6.3e-5,
-                cx: -0.133,
-                cy: 0.208,
-                ..InnerOrientation::ideal(46.981)
-            },
-            exterior: ExteriorOrientation {
-                kappa: 0.013301,
-                phi: 0.01418,
-                omega: -0.026,
-                centre: Vector3::new(375.121, 364.541, 1842.675),
-            },
+            grid: DC40_GRID,
+            inner: TABLE1_INNER,
+            exterior: table2_exterior(0),
         };
         let world = Vector3::new(310.0, 83.0, 200.0);
         let (c, r) = cam.world_to_pixel(&world).unwrap();

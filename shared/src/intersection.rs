@@ -129,12 +129,9 @@ mod tests {
 
     #[test]
     fn both_methods_recover_a_point() {
+        use crate::paper::{table2_exterior, TABLE3_GLOBAL};
         let x = Vector3::new(300.0, 350.0, 200.0);
-        let (cam, proj) = rays(
-            x,
-            Vector3::new(375.121, 364.541, 1842.675),
-            Vector3::new(-114.601, 383.502, 1905.981),
-        );
+        let (cam, proj) = rays(x, table2_exterior(0).centre, Vector3::from(TABLE3_GLOBAL));
         for hit in [
             intersect_paper(&cam, &proj).unwrap(),
             closest_approach(&cam, &proj).unwrap(),

@@ -10,6 +10,7 @@
 //! | [`projector`] | eq. (5) | the calibrated projector: a centre and a table of rays |
 //! | [`identify`] | section 4 (open problem) | which projector ray made each detected dot (epipolar segments) |
 //! | [`intersection`] | eqs (8), (9) | λ, λp, and a least-squares closest approach |
+//! | [`paper`] | Tables 1-4 | the paper's published figures |
 //! | [`rig`] | section 2 | camera + projector: an image point and a ray id → a 3D point |
 //! | [`protocol`] | — | the host ↔ device wire protocol (messages, frames, calibration blob) |
 //!
@@ -33,6 +34,7 @@ pub mod camera;
 pub mod collinearity;
 pub mod identify;
 pub mod intersection;
+pub mod paper;
 pub mod projector;
 pub mod protocol;
 pub mod rig;

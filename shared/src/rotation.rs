@@ -62,11 +62,9 @@ mod tests {
     /// exterior orientation of Table 2.
     #[test]
     fn table3_projector_centre_in_camera_system() {
-        let r = rotation_matrix(0.013301_f64, 0.01418, -0.02600);
-        let x0 = Vector3::new(375.121, 364.541, 1842.675);
-        let global = Vector3::new(-114.601, 383.502, 1905.981);
-        let cam = r * (global - x0);
-        let table3 = Vector3::new(-490.304, 23.837, 56.8250);
+        use crate::paper::{table2_exterior, TABLE3_CAMERA, TABLE3_GLOBAL};
+        let cam = table2_exterior(0).world_to_camera(&Vector3::from(TABLE3_GLOBAL));
+        let table3 = Vector3::from(TABLE3_CAMERA);
         assert!((cam - table3).amax() < 0.01, "{cam} vs {table3}");
     }
 }

@@ -3,39 +3,22 @@
 
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
+use deltaz_shared::paper::{table2_exterior, DC40_GRID, TABLE1_INNER, TABLE3_GLOBAL};
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::rig::{Method, Rig};
 use deltaz_shared::Error;
 use nalgebra::Vector3;
 use proptest::prelude::*;
 
-const DC40: PixelGrid<f64> = PixelGrid {
-    pixel_size: 0.045,
-    width: 768,
-    height: 512,
-    origin_col: 378.0,
-    origin_row: 252.0,
-};
+const DC40: PixelGrid<f64> = DC40_GRID;
 
 fn table1() -> InnerOrientation<f64> {
-    InnerOrientation {
-        cx: -0.133,
-        cy: 0.208,
-        k1: 0.000063,
-        ..InnerOrientation::ideal(46.981)
-    }
+    TABLE1_INNER
 }
 
 fn plane1() -> ExteriorOrientation<f64> {
-    ExteriorOrientation {
-        kappa: 0.013301,
-        phi: 0.01418,
-        omega: -0.02600,
-        centre: Vector3::new(375.121, 364.541, 1842.675),
-    }
+    table2_exterior(0)
 }
-
-const TABLE3_GLOBAL: [f64; 3] = [-114.601, 383.502, 1905.981];
 
 /// A 20 x 22 pattern spanning Table 4's rays (l 0.085..0.385, m −0.172..0.133), ids row·100 + col.
 fn pattern() -> Vec<ProjectorRay<f64>> {

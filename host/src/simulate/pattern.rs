@@ -5,33 +5,39 @@
 //! (tangents of the angles in the projector frame); its ray leaves the projector along
 //! R_proj · normalise(s_x, s_y, −1) in the camera system. Ray ids are row·100 + col.
 //!
-//! The paper pattern is 20 rows × 22 columns. Table 4's rays "01".."23" carry the ids 1, 2, 3,
-//! 101, …, 203 (label "ij" → id i·100 + j). They are spaced about seven dots apart on the real
-//! slide (they span the image), so they are placed at the grid nodes (3 + 7i, 3 + 7(j − 1)) with
-//! their exact Table 4 directions, and the ids of those nodes and of the nodes (i, j) are swapped:
-//! every id is still some row·100 + col, and the grid stays uniform.
+//! The paper pattern is 20 rows × 22 columns. Table 4's rays "01".."23" are spaced about seven
+//! dots apart on the real slide (they span the image), so label "ij" sits at the grid node
+//! (3 + 7i, 3 + 7(j − 1)) with its exact Table 4 direction: ids 303, 310, 317, 1003, …, 1717
+//! ([`TABLE4_IDS`]). The grid stays uniform around them.
 
+use deltaz_shared::paper::TABLE4;
 use nalgebra::{Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-/// Table 4: direction cosines (l, m, n) of the nine calibrated rays in the paper's global frame,
-/// by label "ij" (row i, column j).
-pub const TABLE4: [(u16, [f64; 3]); 9] = [
-    (1, [0.09159, -0.17179, -0.98087]),
-    (2, [0.24040, -0.16860, -0.95592]),
-    (3, [0.38490, -0.16341, -0.90838]),
-    (101, [0.09012, -0.02403, -0.99564]),
-    (102, [0.23928, -0.01954, -0.97075]),
-    (103, [0.38453, -0.01461, -0.92300]),
-    (201, [0.08562, 0.12279, -0.98873]),
-    (202, [0.23365, 0.12957, -0.96365]),
-    (203, [0.37689, 0.13301, -0.91666]),
-];
-
 /// Grid pitch of the paper's slide relative to Table 4's spacing.
-const PAPER_SUBDIVISION: f64 = 7.0;
+const PAPER_SUBDIVISION: u16 = 7;
 /// The grid row and column of Table 4's ray "01".
 const PAPER_TABLE4_ORIGIN: (u16, u16) = (3, 3);
+
+/// The grid node (row, col) of Table 4's label "ij" = `[i, j]` in the paper pattern.
+pub const fn table4_node([i, j]: [u16; 2]) -> (u16, u16) {
+    (
+        PAPER_TABLE4_ORIGIN.0 + PAPER_SUBDIVISION * i,
+        PAPER_TABLE4_ORIGIN.1 + PAPER_SUBDIVISION * (j - 1),
+    )
+}
+
+/// The ids (row·100 + col) of Table 4's nine rays in the paper pattern, in Table 4's order.
+pub const TABLE4_IDS: [u16; 9] = {
+    let mut ids = [0; 9];
+    let mut k = 0;
+    while k < 9 {
+        let (row, col) = table4_node(TABLE4[k].0);
+        ids[k] = row * 100 + col;
+        k += 1;
+    }
+    ids
+};
 
 /// A dot pattern as a grid on the slide (see the module docs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -47,7 +53,8 @@ pub struct PatternSpec {
     pub col_step: [f64; 2],
     /// Slide step from one row to the next.
     pub row_step: [f64; 2],
-    /// Whether the ids 1..203 are Table 4's rays at their exact directions (the paper pattern).
+    /// Whether Table 4's rays sit at their exact directions on nodes [`table4_node`] (the paper
+    /// pattern).
     #[serde(default)]
     pub table4: bool,
     /// Radial distortion of the slide: s ↦ s (1 + k ρ²), ρ measured from the grid's centre.
@@ -81,9 +88,9 @@ impl PatternSpec {
         // Least-squares affine fit s = a + col·b + row·c over Table 4's nine rays.
         let mut n = Matrix3::<f64>::zeros();
         let mut rhs = [Vector3::<f64>::zeros(); 2];
-        for (id, d) in TABLE4 {
+        for ([i, j], d) in TABLE4 {
             let s = slide_of(&Vector3::from(d));
-            let basis = Vector3::new(1.0, f64::from(id % 100), f64::from(id / 100));
+            let basis = Vector3::new(1.0, f64::from(j), f64::from(i));
             n += basis * basis.transpose();
             rhs[0] += basis * s.x;
             rhs[1] += basis * s.y;
@@ -91,7 +98,7 @@ impl PatternSpec {
         let inv = n.try_inverse().expect("Table 4 spans a grid");
         let (fu, fv) = (inv * rhs[0], inv * rhs[1]);
         let (r0, c0) = PAPER_TABLE4_ORIGIN;
-        let k = PAPER_SUBDIVISION;
+        let k = f64::from(PAPER_SUBDIVISION);
         let col_step = [fu.y / k, fv.y / k];
         let row_step = [fu.z / k, fv.z / k];
         // Table 4's "01" (row 0, col 1) sits at node (r0, c0).
@@ -120,27 +127,8 @@ impl PatternSpec {
         )
     }
 
-    /// The id of grid node (row, col): row·100 + col, with the Table 4 swap of the paper
-    /// pattern.
+    /// The id of grid node (row, col): row·100 + col.
     pub fn id(&self, row: u16, col: u16) -> u16 {
-        if self.table4 {
-            let (r0, c0) = PAPER_TABLE4_ORIGIN;
-            let step = PAPER_SUBDIVISION as u16;
-            let on_table = |r: u16, c: u16| {
-                r >= r0
-                    && c >= c0
-                    && (r - r0).is_multiple_of(step)
-                    && (c - c0).is_multiple_of(step)
-                    && (r - r0) / step < 3
-                    && (c - c0) / step < 3
-            };
-            if on_table(row, col) {
-                return ((row - r0) / step) * 100 + (col - c0) / step + 1;
-            }
-            if row < 3 && (1..=3).contains(&col) {
-                return (r0 + step * row) * 100 + c0 + step * (col - 1);
-            }
-        }
         row * 100 + col
     }
 
@@ -154,7 +142,7 @@ impl PatternSpec {
                 let id = self.id(row, col);
                 let table = TABLE4
                     .iter()
-                    .find(|(t, _)| self.table4 && *t == id)
+                    .find(|(label, _)| self.table4 && table4_node(*label) == (row, col))
                     .map(|(_, d)| slide_of(&Vector3::from(*d)));
                 let s = table.unwrap_or_else(|| self.node(row, col));
                 let rho = s - centre;
@@ -194,7 +182,7 @@ mod tests {
         ids.dedup();
         assert_eq!(ids.len(), 440);
         assert!(ids.iter().all(|id| id / 100 < 20 && id % 100 < 22));
-        for (id, d) in TABLE4 {
+        for (id, (_, d)) in TABLE4_IDS.into_iter().zip(TABLE4) {
             let ray = rays.iter().find(|r| r.id == id).unwrap();
             let expect = Vector3::from(d).normalize();
             assert!((ray.direction - expect).norm() < 1e-12, "ray {id}");
@@ -202,7 +190,7 @@ mod tests {
         // The grid is uniform around the Table 4 rays: each lies within 0.4 pitch of its node
         // (Table 4 is not exactly affine), so neighbouring dots stay well apart.
         let pitch = Vector2::from(p.col_step).norm();
-        for ray in rays.iter().filter(|r| r.id < 300 && r.id % 100 < 4) {
+        for ray in rays.iter().filter(|r| TABLE4_IDS.contains(&r.id)) {
             let node = p.node(ray.row, ray.col);
             let miss = (slide_of(&ray.direction) - node).norm();
             assert!(

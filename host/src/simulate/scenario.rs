@@ -3,6 +3,7 @@
 
 use super::pattern::PatternSpec;
 use crate::io::camera_file::{InnerParams, PoseParams};
+use deltaz_shared::paper::{DC40_GRID, TABLE1_INNER, TABLE2, TABLE3_CAMERA};
 use serde::{Deserialize, Serialize};
 
 /// A complete simulation set-up.
@@ -124,11 +125,7 @@ impl Scenario {
     /// 48-target field seen from 9 convergent stations, Table 2's three plate poses, Table 3's
     /// projector centre, Table 4's rays in a 20 × 22 pattern, 0.5 px noise.
     pub fn paper() -> Self {
-        let table2 = [
-            [0.013301, 0.01418, -0.02600, 375.121, 364.541, 1842.675],
-            [0.01321, 0.00983, -0.02641, 369.765, 365.590, 1741.494],
-            [0.01274, 0.01590, -0.02787, 382.264, 368.888, 1639.377],
-        ];
+        let table2 = TABLE2;
         let mut control = Vec::new();
         for y in [-40.0, 240.0, 480.0, 770.0] {
             for x in [0.0, 190.0, 375.0, 560.0, 750.0] {
@@ -140,16 +137,10 @@ impl Scenario {
             name: "paper".into(),
             seed: 1,
             camera: CameraSpec {
-                pixel_size: 0.045,
-                image_size: [768, 512],
-                origin: [378.0, 252.0],
-                inner: InnerParams {
-                    f: 46.981,
-                    cx: -0.133,
-                    cy: 0.208,
-                    k1: 0.000063,
-                    ..InnerParams::default()
-                },
+                pixel_size: DC40_GRID.pixel_size,
+                image_size: [DC40_GRID.width, DC40_GRID.height],
+                origin: [DC40_GRID.origin_col, DC40_GRID.origin_row],
+                inner: TABLE1_INNER.into(),
                 init_f: 46.0,
             },
             field: FieldSpec {
@@ -165,7 +156,7 @@ impl Scenario {
                 rolls: vec![0.0, std::f64::consts::FRAC_PI_2],
             },
             rig: RigSpec {
-                projector_centre: [-490.304, 23.837, 56.825],
+                projector_centre: TABLE3_CAMERA,
                 projector_angles: [table2[0][0], table2[0][1], table2[0][2]],
                 pattern: PatternSpec::paper(),
             },
