@@ -13,7 +13,7 @@ fn paper_images_measured_and_identified() {
     let scenario = Scenario::paper();
     assert_eq!(
         write_images(&scenario, 1, &ImageSpec::default(), dir.path()).unwrap(),
-        12
+        15
     );
     let centres = read_observations(&dir.path().join("images/centres.csv")).unwrap();
 

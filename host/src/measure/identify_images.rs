@@ -4,7 +4,11 @@
 //!
 //! On a plate image the control targets and the projected dots are told apart by the layout
 //! match: every blob within the tolerance of a projected control point (matched or not) is a
-//! target; the others are dots. The marker is the largest of the dots, and it must be at least
+//! target; the others are dots. With the projector's dots on it, most control targets of the
+//! paper plate merge with a dot (dot pitch about 35 px, targets 10-16 px across) and fail the
+//! shape tests; so a plate is best also taken with the projector off (`p1_control.png` beside
+//! `p1.png`, same pose): the control targets are then measured there. Without it the control
+//! comes from the dot image itself. The marker is the largest of the dots, and it must be at least
 //! [`MARKER_AREA_RATIO`] times the median dot's area (the simulator draws it 1.7 times larger in
 //! diameter, 2.9 times in area).
 
@@ -19,11 +23,16 @@ use deltaz_shared::collinearity::Camera;
 use nalgebra::Vector2;
 use std::path::{Path, PathBuf};
 
+/// The file-stem suffix of a plate image taken with the projector off (same pose as the image
+/// without the suffix): its control targets are measured there, free of projected dots.
+pub const CONTROL_SUFFIX: &str = "_control";
+
 /// How much larger (in area) than the median dot the marker must be.
 pub const MARKER_AREA_RATIO: f64 = 1.8;
 
 /// The image files (PNG, TIFF, JPEG by extension) of a folder whose names start with `prefix`,
-/// sorted by name; an error if there are none.
+/// sorted by name, without the projector-off images ([`CONTROL_SUFFIX`]); an error if there
+/// are none.
 pub fn image_files(dir: &Path, prefix: &str) -> Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("{}: cannot read the folder", dir.display()))?
@@ -38,6 +47,10 @@ pub fn image_files(dir: &Path, prefix: &str) -> Result<Vec<PathBuf>> {
                 ext.as_deref(),
                 Some("png" | "tif" | "tiff" | "jpg" | "jpeg")
             ) && name.starts_with(prefix)
+                && !p
+                    .file_stem()
+                    .and_then(|s| s.to_str())
+                    .is_some_and(|s| s.ends_with(CONTROL_SUFFIX))
         })
         .collect();
     files.sort();
@@ -138,8 +151,14 @@ pub fn identify_images(
             bail!("{}: a second image labelled {label}", path.display());
         }
         let measured = measure_file(path, params)?;
+        // A projector-off image of the same plate, if there is one, carries the control.
+        let control = match control_image(path) {
+            Some(c) if dots.is_some() => Some(measure_file(&c, params)?),
+            _ => None,
+        };
         let report = identify_measurement(
             &label,
+            control.as_ref().unwrap_or(&measured),
             &measured,
             layout,
             grid,
@@ -154,11 +173,22 @@ pub fn identify_images(
     Ok(out)
 }
 
-/// One measured image: its observations appended to `observations`.
+/// The projector-off sibling of an image (`p1.png` → `p1_control.png`), if it exists.
+fn control_image(path: &Path) -> Option<PathBuf> {
+    let stem = path.file_stem()?.to_str()?;
+    let ext = path.extension()?.to_str()?;
+    let sibling = path.with_file_name(format!("{stem}{CONTROL_SUFFIX}.{ext}"));
+    sibling.is_file().then_some(sibling)
+}
+
+/// One measured image: its observations appended to `observations`. The control targets are
+/// taken from `measured` (the projector-off image where there is one), the dots from
+/// `dot_image`.
 #[allow(clippy::too_many_arguments)]
 pub fn identify_measurement(
     label: &str,
     measured: &Measurement,
+    dot_image: &Measurement,
     layout: &Layout,
     grid: &PixelGrid<f64>,
     inner: &InnerOrientation<f64>,
@@ -218,16 +248,21 @@ pub fn identify_measurement(
         .filter_map(|(_, xyz)| camera.world_to_pixel(xyz).ok())
         .map(|(c, r)| Vector2::new(c, r))
         .collect();
-    let dot_blobs: Vec<&Blob> = blobs
+    let dot_image_blobs: Vec<Blob> = dot_image
+        .targets
         .iter()
-        .zip(&matched.labels)
-        .filter(|(b, l)| {
-            l.is_none()
-                && projected
-                    .iter()
-                    .all(|p| (p - b.centre).norm() > tolerance_px)
+        .map(|t| Blob {
+            centre: Vector2::new(t.col, t.row),
+            area: t.blob.area as f64,
         })
-        .map(|(b, _)| b)
+        .collect();
+    let dot_blobs: Vec<&Blob> = dot_image_blobs
+        .iter()
+        .filter(|b| {
+            projected
+                .iter()
+                .all(|p| (p - b.centre).norm() > tolerance_px)
+        })
         .collect();
     let centres: Vec<Vector2<f64>> = dot_blobs.iter().map(|b| b.centre).collect();
     let marker = (0..dot_blobs.len())
@@ -318,6 +353,15 @@ pub fn folder_observations(
     for r in &found.reports {
         println!("{r}");
     }
+    let mut found = found;
+    if dots.is_some() {
+        let dropped = drop_single_plane_rays(&mut found.observations);
+        if !dropped.is_empty() {
+            println!(
+                "left out, labelled on one plate only (the projector calibration needs two): rays {dropped:?}"
+            );
+        }
+    }
     let path = observations_path(out);
     crate::io::observations::write_observations(&path, &found.observations)?;
     println!(
@@ -327,4 +371,23 @@ pub fn folder_observations(
         path.display()
     );
     Ok(path)
+}
+
+/// Removes the dot observations of rays labelled in fewer than two images; returns their ids.
+pub fn drop_single_plane_rays(observations: &mut Vec<Observation>) -> Vec<String> {
+    let mut images =
+        std::collections::BTreeMap::<String, std::collections::BTreeSet<String>>::new();
+    for o in observations.iter().filter(|o| o.kind == PointKind::Dot) {
+        images
+            .entry(o.point.clone())
+            .or_default()
+            .insert(o.image.clone());
+    }
+    let single: Vec<String> = images
+        .into_iter()
+        .filter(|(_, i)| i.len() < 2)
+        .map(|(id, _)| id)
+        .collect();
+    observations.retain(|o| o.kind != PointKind::Dot || !single.contains(&o.point));
+    single
 }

@@ -14,6 +14,7 @@
 
 use super::{field_stations, field_targets, true_camera, Scenario};
 use crate::io::observations::{write_observations, Observation, PointKind};
+use crate::measure::identify_images::CONTROL_SUFFIX;
 use crate::measure::layout::{distinct_targets, DISTINCT_COUNT};
 use crate::measure::render::{Background, BitDepth, Scene, Spot};
 use anyhow::Result;
@@ -162,7 +163,7 @@ pub fn true_rig(scenario: &Scenario) -> crate::system::SystemRig {
 }
 
 /// Render every field and plate image of `scenario` into `dir/images/` (`s1.png`, …, `p1.png`,
-/// …) and their true centres into `dir/images/centres.csv`; returns the number of images.
+/// …, and each plate with the projector off, `p1_control.png`, …) and their true centres into `dir/images/centres.csv`; returns the number of images.
 pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path) -> Result<usize> {
     let out = dir.join("images");
     std::fs::create_dir_all(&out)?;
@@ -231,6 +232,7 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
                 spots.push(spot);
             }
         }
+        let control_spots = spots.clone();
         let r_world_cam = camera.exterior.r_cam_world().transpose();
         let [x0, x1, y0, y1] = scenario.plate.extent;
         for ray in &rays {
@@ -269,6 +271,14 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
                 spots.push(spot);
             }
         }
+        // The same plate with the projector off: the control targets alone.
+        save(
+            &format!("{image}{CONTROL_SUFFIX}"),
+            &camera,
+            control_spots,
+            200 + k as u64,
+        )?;
+        count += 1;
         save(&image, &camera, spots, 100 + k as u64)?;
         count += 1;
     }
