@@ -8,24 +8,32 @@
 //! 1. The largest blobs of the image (those rejected by the shape tests too: a projected dot
 //!    falling on a target merges with it) are the candidates for the distinct targets.
 //! 2. Every assignment of four candidates to four distinct targets gives a plane homography
-//!    (the distinct targets are coplanar); it projects the other control points of that plane,
-//!    and the assignment scores the points that land on a blob within the tolerance.
-//! 3. The best-scoring correspondences give a start pose by space resection (planar homography
-//!    decomposition, [`crate::resection::resect`]); every control point is projected through the
-//!    camera, matched to the one blob within the tolerance (none if two are), the pose is
-//!    resected again on all matches and the matching repeated.
+//!    (the distinct targets are coplanar); one that crowds the layout together (from nearly
+//!    collinear candidates) is dropped. It scores the distinct targets that land on a candidate
+//!    (within 2 tolerances), then the other control points of that plane that land on a blob.
+//! 3. Every assignment with the most distinct targets explained gives a start pose by space
+//!    resection (planar homography decomposition, [`crate::resection::resect`]) from the
+//!    plane's matched points and the four candidates; every control point is projected
+//!    through the camera and matched to the one blob within the tolerance (none if two are);
+//!    the pose is resected again from those matches (Gauss-Newton from the previous pose,
+//!    dropping points beyond 3× the median residual), the tolerance shrinks to 8× the
+//!    residual RMS (at least 1.5 px, so neighbouring dots stay out) and the matching is
+//!    repeated until the labels settle.
 //! 4. Among the labellings whose residual RMS is within 3× (+ 0.3 px) of the best-fitting one
 //!    (of at least six points), the one with the most matches wins; a different labelling with
 //!    as many matches is reported as ambiguous. The residual decides between a labelling and
 //!    its mirror image: a plate with raised points flipped over fits a mirrored layout with a
-//!    few pixels of residual, the right labelling with the centroid noise.
+//!    few pixels of residual, the right labelling with the centroid noise. A best labelling
+//!    with a residual RMS above a quarter of the tolerance is an error, never a guess.
 //!
 //! # Target requirements
 //! - At least four distinct targets in one plane (one height level of the control), all of them
 //!   markedly larger in the image than every other blob (projected dots and the dot pattern's
 //!   marker included), and at least four of them visible in every image.
-//! - The distinct targets must not be placed symmetrically: no rotation or reflection of their
-//!   plane may map them onto themselves (that would leave the assignment open).
+//! - The distinct targets must not be placed symmetrically under a rotation of their plane
+//!   (that would leave the assignment open). A reflection symmetry (as the default rule's pick on
+//!   the paper plate has) is resolved by step 4 only where control points stand off that plane
+//!   (the plate's raised points).
 //! - The control points must be farther apart in the image than twice the tolerance, and the
 //!   approximate inner orientation good enough to project them within the tolerance (8 pixels by
 //!   default; the paper camera's k1 moves the corners by 7 pixels before calibration).
