@@ -167,7 +167,16 @@ pub fn identify_images(
             dots,
             &mut out.observations,
         )
-        .with_context(|| format!("{}", path.display()))?;
+        .with_context(|| {
+            if dots.is_some() && control.is_none() {
+                format!(
+                    "{} (no projector-off image {label}{CONTROL_SUFFIX} beside it: its dots may cover the control targets)",
+                    path.display()
+                )
+            } else {
+                format!("{}", path.display())
+            }
+        })?;
         out.reports.push(report);
     }
     Ok(out)
