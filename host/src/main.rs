@@ -271,8 +271,36 @@ enum CalibrateWhat {
         control: PathBuf,
         /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
         /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
-        #[arg(long)]
-        obs: PathBuf,
+        #[arg(long, required_unless_present = "images")]
+        obs: Option<PathBuf>,
+        /// Measure the targets in this folder's images (PNG, TIFF, JPEG) instead of --obs:
+        /// control targets identified by the layout of --control from its distinct targets
+        /// (see `measure::layout`); the observations are written next to --out (*.obs.csv).
+        #[arg(long, conflicts_with = "obs")]
+        images: Option<PathBuf>,
+        /// With --images: only the files whose names start with this.
+        #[arg(long, default_value = "", requires = "images")]
+        only: String,
+        /// With --images: the distinct (larger) control targets, comma-separated labels
+        /// (default: the rule of `measure::layout::distinct_targets`, which `simulate` renders).
+        #[arg(long, value_delimiter = ',', requires = "images")]
+        distinct: Option<Vec<String>>,
+        /// With --images: tolerance (px) of the layout match.
+        #[arg(long, default_value_t = 8.0)]
+        tolerance: f64,
+        /// With --images: the projected pattern, `paper` or a scenario TOML file (its rig's
+        /// pattern: grid size and node ids); the dots are labelled by the grid walk.
+        #[arg(long, default_value = "paper")]
+        pattern: String,
+        /// With --images: the marker dot's grid node ROW,COL.
+        #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [10u16, 11])]
+        marker: Vec<u16>,
+        /// With --images: image direction (col,row) in which the pattern's column index grows.
+        #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [1.0, 0.0], allow_negative_numbers = true)]
+        col_dir: Vec<f64>,
+        /// With --images: image direction (col,row) in which the pattern's row index grows.
+        #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.0, -1.0], allow_negative_numbers = true)]
+        row_dir: Vec<f64>,
         /// Output system.json.
         #[arg(long)]
         out: PathBuf,
@@ -289,9 +317,25 @@ enum CalibrateWhat {
         #[arg(long)]
         init: PathBuf,
         /// Target observations CSV.
-        #[arg(long)]
-        obs: PathBuf,
+        #[arg(long, required_unless_present = "images")]
+        obs: Option<PathBuf>,
+        /// Measure the targets in this folder's images (PNG, TIFF, JPEG) instead of --obs:
+        /// control targets identified by the layout of --control from its distinct targets
+        /// (see `measure::layout`); the observations are written next to --out (*.obs.csv).
+        #[arg(long, conflicts_with = "obs")]
+        images: Option<PathBuf>,
+        /// With --images: only the files whose names start with this.
+        #[arg(long, default_value = "", requires = "images")]
+        only: String,
+        /// With --images: the distinct (larger) control targets, comma-separated labels
+        /// (default: the rule of `measure::layout::distinct_targets`, which `simulate` renders).
+        #[arg(long, value_delimiter = ',', requires = "images")]
+        distinct: Option<Vec<String>>,
+        /// With --images: tolerance (px) of the layout match.
+        #[arg(long, default_value_t = 8.0)]
+        tolerance: f64,
         /// Control CSV (point,X,Y,Z,sigma); without it the network is free (arbitrary datum).
+        /// Required with --images (the layout).
         #[arg(long)]
         control: Option<PathBuf>,
         /// Output camera.json.
@@ -450,16 +494,57 @@ fn main() -> anyhow::Result<()> {
                     camera,
                     control,
                     obs,
+                    images,
+                    only,
+                    distinct,
+                    tolerance,
+                    pattern,
+                    marker,
+                    col_dir,
+                    row_dir,
                     out,
                     model,
                     image_sigma_px,
                 },
-        } => cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?,
+        } => {
+            let obs = match (obs, images) {
+                (Some(obs), _) => obs,
+                (None, Some(dir)) => {
+                    let cam = io::camera_file::read_camera(&camera)?;
+                    let dots = measure::identify_images::DotGrid {
+                        pattern: simulate::load_scenario(&pattern)?.rig.pattern,
+                        marker: (marker[0], marker[1]),
+                        col_dir: nalgebra::Vector2::new(col_dir[0], col_dir[1]),
+                        row_dir: nalgebra::Vector2::new(row_dir[0], row_dir[1]),
+                    };
+                    let folder = measure::identify_images::FolderArgs {
+                        dir,
+                        prefix: only,
+                        control: control.clone(),
+                        distinct,
+                        tolerance_px: tolerance,
+                    };
+                    measure::identify_images::folder_observations(
+                        &folder,
+                        &cam.grid(),
+                        &cam.inner(),
+                        Some(&dots),
+                        &out,
+                    )?
+                }
+                (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
+            };
+            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?
+        }
         Command::Calibrate {
             what:
                 CalibrateWhat::Camera {
                     init,
                     obs,
+                    images,
+                    only,
+                    distinct,
+                    tolerance,
                     control,
                     out,
                     k2,
@@ -478,6 +563,27 @@ fn main() -> anyhow::Result<()> {
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
                 options.free.inner[k] |= on;
             }
+            let obs = match (obs, images, &control) {
+                (Some(obs), _, _) => obs,
+                (None, Some(dir), Some(control)) => {
+                    let start = io::camera_file::read_camera(&init)?;
+                    let folder = measure::identify_images::FolderArgs {
+                        dir,
+                        prefix: only,
+                        control: control.clone(),
+                        distinct,
+                        tolerance_px: tolerance,
+                    };
+                    measure::identify_images::folder_observations(
+                        &folder,
+                        &start.grid(),
+                        &start.inner(),
+                        None,
+                        &out,
+                    )?
+                }
+                _ => anyhow::bail!("give --obs FILE, or --images DIR with --control FILE"),
+            };
             let file = bundle::calibrate_files(&init, &obs, control.as_deref(), &out, &options)?;
             print!("{}", bundle::summary(&file, &options.free));
         }

@@ -109,6 +109,28 @@ pub fn resect(
     refine(grid, inner, &observed, &world, start)
 }
 
+/// Resects one image from an approximate pose (no closed-form start): Gauss-Newton from
+/// `start` on (observed pixel, world) pairs; at least 4 points.
+pub fn resect_from(
+    grid: &PixelGrid<f64>,
+    inner: &InnerOrientation<f64>,
+    points: &[(Vector2<f64>, Vector3<f64>)],
+    start: ExteriorOrientation<f64>,
+) -> Result<ResectionResult, ResectionError> {
+    if points.len() < 4 {
+        return Err(ResectionError::TooFewPoints {
+            given: points.len(),
+            needed: 4,
+        });
+    }
+    let observed: Vec<Vector2<f64>> = points
+        .iter()
+        .map(|(p, _)| grid.pixel_to_photo(p.x, p.y))
+        .collect();
+    let world: Vec<Vector3<f64>> = points.iter().map(|(_, x)| *x).collect();
+    refine(grid, inner, &observed, &world, start)
+}
+
 /// The shape of a point set: its centroid, scale and principal axes (by decreasing spread).
 struct Shape {
     centroid: Vector3<f64>,

@@ -13,7 +13,7 @@ fn paper_images_measured_and_identified() {
     let scenario = Scenario::paper();
     assert_eq!(
         write_images(&scenario, 1, &ImageSpec::default(), dir.path()).unwrap(),
-        12
+        15
     );
     let centres = read_observations(&dir.path().join("images/centres.csv")).unwrap();
 
@@ -174,10 +174,18 @@ fn plate_dots_by_grid_topology() {
             .iter()
             .map(|t| Vector2::new(t.col, t.row))
             .collect();
-        // The marker: the largest fitted ellipse.
+        // The marker: the largest fitted ellipse among the dots (the distinct control targets
+        // are larger still; `identify_images` tells them apart by the layout match).
+        let is_dot = |k: usize| {
+            let t = &m.targets[k];
+            truth
+                .iter()
+                .any(|c| (c.col - t.col).hypot(c.row - t.row) < 0.5)
+        };
         let size = |k: usize| {
             m.targets[k]
                 .fit
+                .filter(|_| is_dot(k))
                 .map_or(0.0, |f| f.semi_major * f.semi_minor)
         };
         let marker = (0..dots.len())

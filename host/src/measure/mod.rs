@@ -23,6 +23,8 @@ pub mod bench;
 pub mod detect;
 pub mod fit;
 pub mod grid;
+pub mod identify_images;
+pub mod layout;
 pub mod render;
 
 use crate::io::observations::{Observation, PointKind};

@@ -7,11 +7,15 @@
 //! ellipse is centred on the true point: the perspective bias of circle centres is left out here
 //! and bounded apart ([`crate::measure::perspective_bias`]: below 0.02 pixel at the paper's
 //! geometry). Dots are the footprints of a light cone of half-angle [`ImageSpec::dot_angle`]
-//! on the plate. Images carry blur, noise, uneven illumination and a non-uniform background
+//! on the plate. The distinct control targets of [`distinct_targets`] are drawn
+//! [`ImageSpec::distinct_scale`] times larger, for their identification by the known layout
+//! ([`crate::measure::layout`]). Images carry blur, noise, uneven illumination and a non-uniform background
 //! ([`crate::measure::render`]).
 
 use super::{field_stations, field_targets, true_camera, Scenario};
 use crate::io::observations::{write_observations, Observation, PointKind};
+use crate::measure::identify_images::CONTROL_SUFFIX;
+use crate::measure::layout::{distinct_targets, DISTINCT_COUNT};
 use crate::measure::render::{Background, BitDepth, Scene, Spot};
 use anyhow::Result;
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
@@ -43,6 +47,9 @@ pub struct ImageSpec {
     pub marker_node: Option<(u16, u16)>,
     /// Size of the marker dot relative to the others.
     pub marker_scale: f64,
+    /// Radius of the distinct control targets (those of
+    /// [`crate::measure::layout::distinct_targets`]) relative to the others.
+    pub distinct_scale: f64,
 }
 
 impl Default for ImageSpec {
@@ -57,6 +64,7 @@ impl Default for ImageSpec {
             depth: BitDepth::Eight,
             marker_node: Some((10, 11)),
             marker_scale: 1.7,
+            distinct_scale: 1.8,
         }
     }
 }
@@ -75,8 +83,14 @@ fn ellipse(centre: (f64, f64), a1: Vector2<f64>, a2: Vector2<f64>, amplitude: f6
     }
 }
 
-/// A circular target facing +Z at `xyz`, if its ellipse lies on the sensor.
-fn target_spot(camera: &Camera<f64>, xyz: &Vector3<f64>, spec: &ImageSpec) -> Option<Spot> {
+/// A circular target facing +Z at `xyz` (`scale` times the spec's radius), if its ellipse lies
+/// on the sensor.
+fn target_spot(
+    camera: &Camera<f64>,
+    xyz: &Vector3<f64>,
+    spec: &ImageSpec,
+    scale: f64,
+) -> Option<Spot> {
     let pix = |p: Vector3<f64>| {
         camera
             .world_to_pixel(&p)
@@ -84,7 +98,7 @@ fn target_spot(camera: &Camera<f64>, xyz: &Vector3<f64>, spec: &ImageSpec) -> Op
             .map(|(c, r)| Vector2::new(c, r))
     };
     let centre = pix(*xyz)?;
-    let r = spec.target_radius;
+    let r = spec.target_radius * scale;
     let half = |e: Vector3<f64>| Some((pix(xyz + e * r)? - pix(xyz - e * r)?) / 2.0);
     let spot = ellipse(
         (centre.x, centre.y),
@@ -149,7 +163,7 @@ pub fn true_rig(scenario: &Scenario) -> crate::system::SystemRig {
 }
 
 /// Render every field and plate image of `scenario` into `dir/images/` (`s1.png`, …, `p1.png`,
-/// …) and their true centres into `dir/images/centres.csv`; returns the number of images.
+/// …, and each plate with the projector off, `p1_control.png`, …) and their true centres into `dir/images/centres.csv`; returns the number of images.
 pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path) -> Result<usize> {
     let out = dir.join("images");
     std::fs::create_dir_all(&out)?;
@@ -163,6 +177,17 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
     };
 
     let targets = field_targets(scenario);
+    let distinct = |points: &[(String, Vector3<f64>)]| {
+        let labels = distinct_targets(points, DISTINCT_COUNT);
+        move |label: &str| {
+            if labels.iter().any(|l| l == label) {
+                spec.distinct_scale
+            } else {
+                1.0
+            }
+        }
+    };
+    let field_scale = distinct(&targets);
     for (k, (image, exterior)) in field_stations(scenario).iter().enumerate() {
         let camera = Camera {
             grid,
@@ -171,7 +196,7 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
         };
         let mut spots = Vec::new();
         for (point, xyz) in &targets {
-            if let Some(spot) = target_spot(&camera, xyz, spec) {
+            if let Some(spot) = target_spot(&camera, xyz, spec, field_scale(point)) {
                 centres.push(Observation::target(image, point, spot.col, spot.row));
                 spots.push(spot);
             }
@@ -185,6 +210,14 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
     let rays = rig.pattern.rays(&rotation_matrix(pk, pp, po));
     let marker = spec.marker_node.map(|(r, c)| rig.pattern.id(r, c));
     let centre_cam = Vector3::from(rig.projector_centre);
+    let plate_control: Vec<(String, Vector3<f64>)> = scenario
+        .plate
+        .control
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (format!("C{:02}", i + 1), Vector3::from(*c)))
+        .collect();
+    let plate_scale = distinct(&plate_control);
     for (k, pose) in scenario.plate.images.iter().enumerate() {
         let image = format!("p{}", k + 1);
         let camera = Camera {
@@ -193,17 +226,13 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
             exterior: (*pose).into(),
         };
         let mut spots = Vec::new();
-        for (i, c) in scenario.plate.control.iter().enumerate() {
-            if let Some(spot) = target_spot(&camera, &Vector3::from(*c), spec) {
-                centres.push(Observation::target(
-                    &image,
-                    &format!("C{:02}", i + 1),
-                    spot.col,
-                    spot.row,
-                ));
+        for (label, c) in &plate_control {
+            if let Some(spot) = target_spot(&camera, c, spec, plate_scale(label)) {
+                centres.push(Observation::target(&image, label, spot.col, spot.row));
                 spots.push(spot);
             }
         }
+        let control_spots = spots.clone();
         let r_world_cam = camera.exterior.r_cam_world().transpose();
         let [x0, x1, y0, y1] = scenario.plate.extent;
         for ray in &rays {
@@ -242,6 +271,14 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
                 spots.push(spot);
             }
         }
+        // The same plate with the projector off: the control targets alone.
+        save(
+            &format!("{image}{CONTROL_SUFFIX}"),
+            &camera,
+            control_spots,
+            200 + k as u64,
+        )?;
+        count += 1;
         save(&image, &camera, spots, 100 + k as u64)?;
         count += 1;
     }

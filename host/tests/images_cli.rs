@@ -1,0 +1,102 @@
+//! `deltaz calibrate camera --images` and `deltaz calibrate projector --images` after
+//! `deltaz simulate --images`: no observation file given by hand; the measured observations
+//! are written next to the outputs. A folder without images is an error and writes nothing.
+
+use deltaz_host::io::observations::{read_observations, PointKind};
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn deltaz(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap()
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn calibrations_from_image_folders() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&deltaz(
+        &["simulate", "--scenario", "paper", "--out", ".", "--images"],
+        d,
+    ));
+    let camera = ok(&deltaz(
+        &[
+            "calibrate",
+            "camera",
+            "--init",
+            "camera_init.json",
+            "--images",
+            "images",
+            "--only",
+            "s",
+            "--control",
+            "camera_control.csv",
+            "--out",
+            "camera.json",
+        ],
+        d,
+    ));
+    assert!(camera.contains("s9: "), "{camera}");
+    let field = read_observations(&d.join("camera.obs.csv")).unwrap();
+    assert!(field.len() >= 380, "{}", field.len());
+    assert!(field.iter().all(|o| o.point.starts_with('T')));
+
+    let projector = ok(&deltaz(
+        &[
+            "calibrate",
+            "projector",
+            "--camera",
+            "camera.json",
+            "--control",
+            "plate_control.csv",
+            "--images",
+            "images",
+            "--only",
+            "p",
+            "--out",
+            "system.json",
+        ],
+        d,
+    ));
+    println!("{projector}");
+    let plate = read_observations(&d.join("system.obs.csv")).unwrap();
+    let dots = plate.iter().filter(|o| o.kind == PointKind::Dot).count();
+    let control = plate.len() - dots;
+    assert!(dots >= 1250, "{dots} dots");
+    assert_eq!(control, 45);
+    assert!(d.join("system.json").is_file());
+
+    // An empty folder: an error naming it, nothing written.
+    std::fs::create_dir(d.join("empty")).unwrap();
+    let out = deltaz(
+        &[
+            "calibrate",
+            "camera",
+            "--init",
+            "camera_init.json",
+            "--images",
+            "empty",
+            "--control",
+            "camera_control.csv",
+            "--out",
+            "again.json",
+        ],
+        d,
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("empty: no PNG, TIFF or JPEG images"), "{err}");
+    assert!(!d.join("again.json").exists() && !d.join("again.obs.csv").exists());
+}
