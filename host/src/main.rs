@@ -258,6 +258,42 @@ impl DeviceIdentifyArgs {
     }
 }
 
+/// Observations measured from a folder of images instead of an observations CSV.
+#[derive(clap::Args)]
+struct ImageFolder {
+    /// Measure the targets in this folder's images (PNG, TIFF, JPEG) instead of --obs:
+    /// control targets identified by the layout of --control from its distinct targets
+    /// (see `measure::layout`); the observations are written next to --out (*.obs.csv).
+    #[arg(long, conflicts_with = "obs")]
+    images: Option<PathBuf>,
+    /// With --images: only the files whose names start with this.
+    #[arg(long, default_value = "", requires = "images")]
+    only: String,
+    /// With --images: the distinct (larger) control targets, comma-separated labels
+    /// (default: the rule of `measure::layout::distinct_targets`, which `simulate` renders).
+    #[arg(long, value_delimiter = ',', requires = "images")]
+    distinct: Option<Vec<String>>,
+    /// With --images: tolerance (px) of the layout match.
+    #[arg(long, default_value_t = 8.0)]
+    tolerance: f64,
+}
+
+impl ImageFolder {
+    /// The folder's measuring arguments with this control layout, or `None` without --images.
+    fn with_control(
+        self,
+        control: &std::path::Path,
+    ) -> Option<measure::identify_images::FolderArgs> {
+        Some(measure::identify_images::FolderArgs {
+            dir: self.images?,
+            prefix: self.only,
+            control: control.to_path_buf(),
+            distinct: self.distinct,
+            tolerance_px: self.tolerance,
+        })
+    }
+}
+
 #[derive(Subcommand)]
 enum CalibrateWhat {
     /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
@@ -273,21 +309,8 @@ enum CalibrateWhat {
         /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
         #[arg(long, required_unless_present = "images")]
         obs: Option<PathBuf>,
-        /// Measure the targets in this folder's images (PNG, TIFF, JPEG) instead of --obs:
-        /// control targets identified by the layout of --control from its distinct targets
-        /// (see `measure::layout`); the observations are written next to --out (*.obs.csv).
-        #[arg(long, conflicts_with = "obs")]
-        images: Option<PathBuf>,
-        /// With --images: only the files whose names start with this.
-        #[arg(long, default_value = "", requires = "images")]
-        only: String,
-        /// With --images: the distinct (larger) control targets, comma-separated labels
-        /// (default: the rule of `measure::layout::distinct_targets`, which `simulate` renders).
-        #[arg(long, value_delimiter = ',', requires = "images")]
-        distinct: Option<Vec<String>>,
-        /// With --images: tolerance (px) of the layout match.
-        #[arg(long, default_value_t = 8.0)]
-        tolerance: f64,
+        #[command(flatten)]
+        folder: ImageFolder,
         /// With --images: the projected pattern, `paper` or a scenario TOML file (its rig's
         /// pattern: grid size and node ids); the dots are labelled by the grid walk.
         #[arg(long, default_value = "paper")]
@@ -319,21 +342,8 @@ enum CalibrateWhat {
         /// Target observations CSV.
         #[arg(long, required_unless_present = "images")]
         obs: Option<PathBuf>,
-        /// Measure the targets in this folder's images (PNG, TIFF, JPEG) instead of --obs:
-        /// control targets identified by the layout of --control from its distinct targets
-        /// (see `measure::layout`); the observations are written next to --out (*.obs.csv).
-        #[arg(long, conflicts_with = "obs")]
-        images: Option<PathBuf>,
-        /// With --images: only the files whose names start with this.
-        #[arg(long, default_value = "", requires = "images")]
-        only: String,
-        /// With --images: the distinct (larger) control targets, comma-separated labels
-        /// (default: the rule of `measure::layout::distinct_targets`, which `simulate` renders).
-        #[arg(long, value_delimiter = ',', requires = "images")]
-        distinct: Option<Vec<String>>,
-        /// With --images: tolerance (px) of the layout match.
-        #[arg(long, default_value_t = 8.0)]
-        tolerance: f64,
+        #[command(flatten)]
+        folder: ImageFolder,
         /// Control CSV (point,X,Y,Z,sigma); without it the network is free (arbitrary datum).
         /// Required with --images (the layout).
         #[arg(long)]
@@ -494,10 +504,7 @@ fn main() -> anyhow::Result<()> {
                     camera,
                     control,
                     obs,
-                    images,
-                    only,
-                    distinct,
-                    tolerance,
+                    folder,
                     pattern,
                     marker,
                     col_dir,
@@ -507,22 +514,15 @@ fn main() -> anyhow::Result<()> {
                     image_sigma_px,
                 },
         } => {
-            let obs = match (obs, images) {
+            let obs = match (obs, folder.with_control(&control)) {
                 (Some(obs), _) => obs,
-                (None, Some(dir)) => {
+                (None, Some(folder)) => {
                     let cam = io::camera_file::read_camera(&camera)?;
                     let dots = measure::identify_images::DotGrid {
                         pattern: simulate::load_scenario(&pattern)?.rig.pattern,
                         marker: (marker[0], marker[1]),
                         col_dir: nalgebra::Vector2::new(col_dir[0], col_dir[1]),
                         row_dir: nalgebra::Vector2::new(row_dir[0], row_dir[1]),
-                    };
-                    let folder = measure::identify_images::FolderArgs {
-                        dir,
-                        prefix: only,
-                        control: control.clone(),
-                        distinct,
-                        tolerance_px: tolerance,
                     };
                     measure::identify_images::folder_observations(
                         &folder,
@@ -541,10 +541,7 @@ fn main() -> anyhow::Result<()> {
                 CalibrateWhat::Camera {
                     init,
                     obs,
-                    images,
-                    only,
-                    distinct,
-                    tolerance,
+                    folder,
                     control,
                     out,
                     k2,
@@ -563,17 +560,11 @@ fn main() -> anyhow::Result<()> {
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
                 options.free.inner[k] |= on;
             }
-            let obs = match (obs, images, &control) {
-                (Some(obs), _, _) => obs,
-                (None, Some(dir), Some(control)) => {
+            let folder = control.as_deref().and_then(|c| folder.with_control(c));
+            let obs = match (obs, folder) {
+                (Some(obs), _) => obs,
+                (None, Some(folder)) => {
                     let start = io::camera_file::read_camera(&init)?;
-                    let folder = measure::identify_images::FolderArgs {
-                        dir,
-                        prefix: only,
-                        control: control.clone(),
-                        distinct,
-                        tolerance_px: tolerance,
-                    };
                     measure::identify_images::folder_observations(
                         &folder,
                         &start.grid(),
