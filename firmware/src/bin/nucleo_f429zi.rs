@@ -9,6 +9,7 @@
 #![no_std]
 #![no_main]
 
+use core::mem::MaybeUninit;
 use cortex_m::peripheral::SCB;
 use cortex_m_rt::entry;
 use deltaz_firmware::probe::CortexProbe;
@@ -115,8 +116,12 @@ fn main() -> ! {
         let store = Store::new(Flash(LockedFlash::new(dp.FLASH)), [SLOT_A, SLOT_B]);
         if let (Ok(serial), Ok(store)) = (serial, store) {
             let probe = CortexProbe::start(cp.SYST);
-            let mut server = Server::boot(store, probe);
-            let _ = server.serve(&mut Vcp(serial));
+            // The server lives in a static, built there in place (no stack copy of it).
+            if let Some(slot) = cortex_m::singleton!(: MaybeUninit<Server<Flash, CortexProbe>> = MaybeUninit::uninit())
+            {
+                let server = Server::boot_in(slot, store, probe);
+                let _ = server.serve(&mut Vcp(serial));
+            }
         }
     }
     SCB::sys_reset()
