@@ -44,7 +44,9 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         server
     }
 
-    /// A server whose device holds no calibration yet.
+    /// A server whose device holds no calibration yet. Inlined, so that [`Server::boot_in`]
+    /// writes it straight into its slot.
+    #[inline(always)]
     fn new(store: Store<F>, probe: P) -> Self {
         Self {
             device: Device::new(store, probe),
