@@ -146,8 +146,8 @@ pub struct Device<F, P> {
 
 impl<F: NorFlash, P: Probe> Device<F, P> {
     /// A device holding no calibration yet: [`Device::load`] it where it will live (see
-    /// [`crate::server::Server::boot`]), since the device is large (the staging buffer, the ray
-    /// table, the identifier) and every move of it costs stack.
+    /// [`crate::server::Server::boot_in`]), since the device is large (the staging buffer, the ray
+    /// tables, the identifier) and every move of it costs stack.
     #[inline(always)]
     pub(crate) fn new(store: Store<F>, probe: P) -> Self {
         Self {
