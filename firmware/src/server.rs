@@ -36,7 +36,7 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         server
     }
 
-    /// [`Server::boot`] in place, into `slot` (a board's static): the server (about 88 KB) is
+    /// [`Server::boot`] in place, into `slot` (a board's static): the server (about 102 KB) is
     /// written there once and never moved, so it costs no stack.
     pub fn boot_in(slot: &mut MaybeUninit<Self>, store: Store<F>, probe: P) -> &mut Self {
         let server = slot.write(Self::new(store, probe));
