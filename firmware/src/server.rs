@@ -36,8 +36,9 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         server
     }
 
-    /// [`Server::boot`] in place, into `slot` (a board's static): the server (about 102 KB) is
-    /// written there once and never moved, so it costs no stack.
+    /// [`Server::boot`] into `slot` (a board's static): the server (about 102 KB) lives there and
+    /// never moves. (The compiler still builds the empty identifier in a temporary: a 64 KB
+    /// frame at boot, below the peak of serving.)
     pub fn boot_in(slot: &mut MaybeUninit<Self>, store: Store<F>, probe: P) -> &mut Self {
         let server = slot.write(Self::new(store, probe));
         server.device.load();
