@@ -3,6 +3,7 @@
 //! store.
 
 use crate::store::{Store, StoreError};
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::protocol::calibration::{
@@ -25,8 +26,12 @@ pub const MAX_RAYS: usize = 512;
 /// The longest calibration blob (bytes): [`MAX_RAYS`] rays of at most 28 bytes plus the header.
 pub const MAX_CALIBRATION: usize = 16 * 1024;
 
-/// The device's rig: f32, centred on the camera (its camera centre is zero).
-pub type DeviceRig = Rig<f32, heapless::Vec<ProjectorRay<f32>, MAX_RAYS>>;
+/// A calibration's projector rays, f32, where the device keeps them.
+type RayTable = heapless::Vec<ProjectorRay<f32>, MAX_RAYS>;
+
+/// The device's rig: f32, centred on the camera (its camera centre is zero), over a ray table
+/// the device holds in place.
+pub type DeviceRig<'a> = Rig<f32, &'a [ProjectorRay<f32>]>;
 
 /// The device's dot identifier: f32, [`MAX_RAYS`] rays, 2048 cells (768 × 512 pixels in cells
 /// of 16), 4096 cell entries; about 43 KB.
@@ -56,18 +61,36 @@ impl Probe for NoProbe {
     }
 }
 
-/// The active calibration.
+/// The active calibration: its rays are the device's ray table number `table`.
 struct Active {
-    rig: DeviceRig,
+    table: usize,
+    grid: PixelGrid<f32>,
+    inner: InnerOrientation<f32>,
+    r_cam_world: Matrix3<f32>,
+    projector_centre: Vector3<f32>,
     method: Method,
     summary: CalibrationSummary,
     identification: Option<IdentifyParams>,
 }
 
 impl Active {
+    /// The rig over this calibration's rays (`tables`, the device's two ray tables). The rays
+    /// were checked at activation, so this cannot fail; should it, the calibration is invalid.
+    fn rig<'a>(&self, tables: &'a [RayTable; 2]) -> Result<DeviceRig<'a>, ErrorCode> {
+        let projector = Projector::new(self.projector_centre, &tables[self.table][..])
+            .map_err(|_| ErrorCode::InvalidCalibration)?;
+        Ok(Rig::from_centred(
+            self.grid,
+            self.inner,
+            self.r_cam_world,
+            Vector3::zeros(),
+            projector,
+        ))
+    }
+
     /// The result for one centroid of ray `id` at pixel (col, row).
-    fn point(&self, id: u16, col: f32, row: f32) -> PointResult {
-        match self.rig.reconstruct(id, col, row, self.method) {
+    fn point(&self, rig: &DeviceRig, id: u16, col: f32, row: f32) -> PointResult {
+        match rig.reconstruct(id, col, row, self.method) {
             Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
             Err(e) => PointResult::from_error(e),
         }
@@ -75,7 +98,11 @@ impl Active {
 
     /// Build `identifier` in place for this calibration (emptied when it carries no
     /// identification).
-    fn build_identifier(&self, identifier: &mut DeviceIdentifier) -> Result<(), ErrorCode> {
+    fn build_identifier(
+        &self,
+        tables: &[RayTable; 2],
+        identifier: &mut DeviceIdentifier,
+    ) -> Result<(), ErrorCode> {
         let Some(p) = self.identification else {
             identifier.clear();
             return Ok(());
@@ -85,7 +112,7 @@ impl Active {
             far: p.far,
         };
         identifier
-            .rebuild(&self.rig, depth, p.tolerance, p.cell)
+            .rebuild(&self.rig(tables)?, depth, p.tolerance, p.cell)
             .map_err(|e| match e {
                 IdentifyError::InvalidParameters | IdentifyError::Geometry(..) => {
                     ErrorCode::InvalidCalibration
@@ -107,6 +134,9 @@ pub struct Device<F, P> {
     store: Store<F>,
     probe: P,
     active: Option<Active>,
+    /// Two ray tables: the active calibration's and the one an upload is checked in, each
+    /// filled in place (the table is large; moving it costs stack).
+    tables: [RayTable; 2],
     identifier: DeviceIdentifier,
     upload: Option<Upload>,
     staging: [u8; MAX_CALIBRATION],
@@ -116,13 +146,15 @@ pub struct Device<F, P> {
 
 impl<F: NorFlash, P: Probe> Device<F, P> {
     /// A device holding no calibration yet: [`Device::load`] it where it will live (see
-    /// [`crate::server::Server::boot`]), since the device is large (the staging buffer, the ray
-    /// table, the identifier) and every move of it costs stack.
+    /// [`crate::server::Server::boot_in`]), since the device is large (the staging buffer, the ray
+    /// tables, the identifier) and every move of it costs stack.
+    #[inline(always)]
     pub(crate) fn new(store: Store<F>, probe: P) -> Self {
         Self {
             store,
             probe,
             active: None,
+            tables: [RayTable::new(), RayTable::new()],
             identifier: DeviceIdentifier::empty(),
             upload: None,
             staging: [0; MAX_CALIBRATION],
@@ -143,7 +175,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     pub(crate) fn load(&mut self) {
         self.active = self.load_stored();
         let built = match &self.active {
-            Some(active) => active.build_identifier(&mut self.identifier),
+            Some(active) => active.build_identifier(&self.tables, &mut self.identifier),
             None => Ok(()),
         };
         // A stored calibration was checked at its commit, identifier included.
@@ -249,9 +281,11 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         }
         // Validate completely before touching the flash, the identifier included (built in
         // place; on failure rebuilt for the calibration that stays active).
-        let mut active = activate(blob, 0).ok_or(ErrorCode::InvalidCalibration)?;
+        let spare = self.active.as_ref().map_or(0, |a| 1 - a.table);
+        let mut active = activate(blob, 0, spare, &mut self.tables[spare])
+            .ok_or(ErrorCode::InvalidCalibration)?;
         let stored = active
-            .build_identifier(&mut self.identifier)
+            .build_identifier(&self.tables, &mut self.identifier)
             .and_then(|()| {
                 self.store.save(blob).map_err(|e| match e {
                     StoreError::TooLarge => ErrorCode::TooLarge,
@@ -263,7 +297,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             Err(e) => {
                 if let Some(old) = &self.active {
                     // It was built once already with these parameters.
-                    let _ = old.build_identifier(&mut self.identifier);
+                    let _ = old.build_identifier(&self.tables, &mut self.identifier);
                 }
                 return Err(e);
             }
@@ -281,11 +315,12 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
         let bits = active.summary.centroid_bits;
         let start = self.probe.now();
+        let rig = active.rig(&self.tables)?;
         let points = centroids
             .iter()
             .map(|c| {
                 let (col, row) = c.pixel::<f32>(bits);
-                active.point(c.id, col, row)
+                active.point(&rig, c.id, col, row)
             })
             .collect();
         let fingerprint = active.summary.fingerprint;
@@ -305,6 +340,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         }
         let bits = active.summary.centroid_bits;
         let start = self.probe.now();
+        let rig = active.rig(&self.tables)?;
         let mut pixels = [(0.0f32, 0.0f32); MAX_BATCH];
         for (pixel, dot) in pixels.iter_mut().zip(dots) {
             *pixel = dot.pixel(bits);
@@ -323,7 +359,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             .map(|(&(col, row), assignment)| match *assignment {
                 Assignment::Ray { id, .. } => IdentifiedPoint {
                     id,
-                    result: active.point(id, col, row),
+                    result: active.point(&rig, id, col, row),
                 },
                 Assignment::Ambiguous { first, .. } => failed(first, PointStatus::Ambiguous),
                 Assignment::Conflict { id } => failed(id, PointStatus::Conflict),
@@ -347,14 +383,15 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
 
     fn load_stored(&mut self) -> Option<Active> {
         let (stored, blob) = self.store.load(&mut self.staging)?;
-        activate(blob, stored.generation)
+        activate(blob, stored.generation, 0, &mut self.tables[0])
     }
 }
 
-/// The f32 rig of a calibration blob, checked: every number finite, f and the pixel size
-/// positive, rays sorted with unit directions, at most [`MAX_RAYS`].
-fn activate(blob: &[u8], generation: u32) -> Option<Active> {
-    let mut rays = heapless::Vec::<ProjectorRay<f32>, MAX_RAYS>::new();
+/// The f32 calibration of a blob, its rays written into `rays` (the device's ray table number
+/// `table`), checked: every number finite, f and the pixel size positive, rays sorted with unit
+/// directions, at most [`MAX_RAYS`].
+fn activate(blob: &[u8], generation: u32, table: usize, rays: &mut RayTable) -> Option<Active> {
+    rays.clear();
     let header = decode_calibration(blob, |r: WireRay| {
         let ray = ProjectorRay {
             id: r.id,
@@ -387,23 +424,21 @@ fn activate(blob: &[u8], generation: u32) -> Option<Active> {
     if !finite || grid.pixel_size <= 0.0 || inner.f <= 0.0 {
         return None;
     }
-    let projector = Projector::new(Vector3::from(projector_centre), rays).ok()?;
+    let projector_centre = Vector3::from(projector_centre);
+    Projector::new(projector_centre, &rays[..]).ok()?;
     let summary = CalibrationSummary {
         fingerprint,
         generation,
-        rays: projector.rays().len() as u16,
+        rays: rays.len() as u16,
         centroid_bits: centroid_fraction_bits(grid.width, grid.height),
         camera_centre,
     };
-    let rig = Rig::from_centred(
+    Some(Active {
+        table,
         grid,
         inner,
-        Matrix3::from_row_slice(&r_cam_world),
-        Vector3::zeros(),
-        projector,
-    );
-    Some(Active {
-        rig,
+        r_cam_world: Matrix3::from_row_slice(&r_cam_world),
+        projector_centre,
         method: method.into(),
         summary,
         identification,

@@ -12,6 +12,7 @@
 
 use crate::device::{Device, Probe};
 use crate::store::Store;
+use core::mem::MaybeUninit;
 use deltaz_shared::protocol::{
     decode_request, encode_frame, ErrorCode, Response, ResponseBody, WireError, MAX_FRAME,
 };
@@ -30,15 +31,31 @@ pub struct Server<F, P> {
 impl<F: NorFlash, P: Probe> Server<F, P> {
     /// Boot a device on `store` (loading its newest valid calibration) and serve it.
     pub fn boot(store: Store<F>, probe: P) -> Self {
-        let mut server = Self {
+        let mut server = Self::new(store, probe);
+        server.device.load();
+        server
+    }
+
+    /// [`Server::boot`] into `slot` (a board's static): the server (about 102 KB) lives there and
+    /// never moves. (The compiler still builds the empty identifier in a temporary: a 64 KB
+    /// frame at boot, below the peak of serving.)
+    pub fn boot_in(slot: &mut MaybeUninit<Self>, store: Store<F>, probe: P) -> &mut Self {
+        let server = slot.write(Self::new(store, probe));
+        server.device.load();
+        server
+    }
+
+    /// A server whose device holds no calibration yet. Inlined, so that [`Server::boot_in`]
+    /// writes it straight into its slot.
+    #[inline(always)]
+    fn new(store: Store<F>, probe: P) -> Self {
+        Self {
             device: Device::new(store, probe),
             rx: [0; MAX_FRAME],
             rx_len: 0,
             overflow: false,
             tx: [0; MAX_FRAME],
-        };
-        server.device.load();
-        server
+        }
     }
 
     /// The device.

@@ -78,11 +78,11 @@ fn qemu_upload_stream_reset() {
     assert!(ticks > 0, "SysTick counts under -icount");
     let stack = device.stats().expect("stats").stack_peak;
     println!("stack high-water mark after the stream: {stack} bytes");
-    // The server (88 KB: the 16 KB upload staging, the 14.5 KB f32 ray table, the 43 KB dot
-    // identifier, two 6.6 KB frame buffers) and a frame's request and response live on the
-    // stack, and building the f32 rig at a commit moves its ray table a few times: the gauge
-    // must see all that (about 200 KB; see firmware/README.md for the real board).
-    assert!((100_000..210_000).contains(&stack), "stack peak {stack} B");
+    // The server (102 KB: the 16 KB upload staging, two 14.5 KB f32 ray tables, the 43 KB dot
+    // identifier, two 6.6 KB frame buffers) lives in a static; the stack holds a frame's request
+    // and response and the commit's identifier build (about 66 KB; with the server it must fit
+    // the Nucleo-F429ZI's 192 KB, see firmware/README.md).
+    assert!((40_000..80_000).contains(&stack), "stack peak {stack} B");
 
     // A reset (SYSRESETREQ) keeps the calibration region: same fingerprint, same results.
     device.reset().expect("reset");
@@ -90,6 +90,13 @@ fn qemu_upload_stream_reset() {
         .expect_calibration(FINGERPRINT)
         .expect("calibration kept");
     assert_eq!(after.generation, summary.generation);
+    // The boot built the server in place and loaded the stored calibration, identifier included.
+    let booted = device.stats().expect("stats").stack_peak;
+    println!("stack high-water mark after the reboot: {booted} bytes");
+    assert!(
+        (10_000..80_000).contains(&booted),
+        "stack peak at boot {booted} B"
+    );
     let again = device.compute(&frames[0]).expect("compute after reset");
     let before = host_points(&rig, &frames[0], bits);
     for (got, host) in again.iter().zip(before) {

@@ -13,6 +13,7 @@
 
 #[cfg(target_os = "none")]
 mod board {
+    use core::mem::MaybeUninit;
     use cortex_m::peripheral::SCB;
     use cortex_m_rt::entry;
     use deltaz_firmware::device::MAX_CALIBRATION;
@@ -170,8 +171,12 @@ mod board {
         let probe = cortex_m::Peripherals::take().map(|p| CortexProbe::start(p.SYST));
         let store = Store::new(RegionFlash, [(0, SLOT), (SLOT, 2 * SLOT)]);
         if let (Some(probe), Ok(store)) = (probe, store) {
-            let mut server = Server::boot(store, probe);
-            let Ok(()) = server.serve(&mut uart);
+            // The server lives in a static, built there in place (no stack copy of it).
+            if let Some(slot) = cortex_m::singleton!(: MaybeUninit<Server<RegionFlash, CortexProbe>> = MaybeUninit::uninit())
+            {
+                let server = Server::boot_in(slot, store, probe);
+                let Ok(()) = server.serve(&mut uart);
+            }
         }
         SCB::sys_reset()
     }
