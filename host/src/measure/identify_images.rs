@@ -205,14 +205,7 @@ pub fn identify_measurement(
     dots: Option<&DotGrid>,
     observations: &mut Vec<Observation>,
 ) -> Result<ImageReport> {
-    let blobs: Vec<Blob> = measured
-        .targets
-        .iter()
-        .map(|t| Blob {
-            centre: Vector2::new(t.col, t.row),
-            area: t.blob.area as f64,
-        })
-        .collect();
+    let blobs = target_blobs(measured);
     let rejected: Vec<Blob> = measured
         .rejected
         .iter()
@@ -257,14 +250,7 @@ pub fn identify_measurement(
         .filter_map(|(_, xyz)| camera.world_to_pixel(xyz).ok())
         .map(|(c, r)| Vector2::new(c, r))
         .collect();
-    let dot_image_blobs: Vec<Blob> = dot_image
-        .targets
-        .iter()
-        .map(|t| Blob {
-            centre: Vector2::new(t.col, t.row),
-            area: t.blob.area as f64,
-        })
-        .collect();
+    let dot_image_blobs = target_blobs(dot_image);
     let dot_blobs: Vec<&Blob> = dot_image_blobs
         .iter()
         .filter(|b| {
@@ -325,6 +311,18 @@ pub struct FolderArgs {
     pub distinct: Option<Vec<String>>,
     /// Matching tolerance (px).
     pub tolerance_px: f64,
+}
+
+/// The accepted targets of a measured image as layout blobs (fitted centre, pixel area).
+fn target_blobs(measured: &Measurement) -> Vec<Blob> {
+    measured
+        .targets
+        .iter()
+        .map(|t| Blob {
+            centre: Vector2::new(t.col, t.row),
+            area: t.blob.area as f64,
+        })
+        .collect()
 }
 
 /// The observations file written next to `out` for inspection: `camera.json` →

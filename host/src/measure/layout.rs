@@ -573,13 +573,7 @@ mod tests {
     use rand::{RngExt, SeedableRng};
 
     fn plate() -> Vec<(String, Vector3<f64>)> {
-        Scenario::paper()
-            .plate
-            .control
-            .iter()
-            .enumerate()
-            .map(|(i, c)| (format!("C{:02}", i + 1), Vector3::from(*c)))
-            .collect()
+        crate::simulate::plate_targets(&Scenario::paper())
     }
 
     #[test]

@@ -210,13 +210,7 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
     let rays = rig.pattern.rays(&rotation_matrix(pk, pp, po));
     let marker = spec.marker_node.map(|(r, c)| rig.pattern.id(r, c));
     let centre_cam = Vector3::from(rig.projector_centre);
-    let plate_control: Vec<(String, Vector3<f64>)> = scenario
-        .plate
-        .control
-        .iter()
-        .enumerate()
-        .map(|(i, c)| (format!("C{:02}", i + 1), Vector3::from(*c)))
-        .collect();
+    let plate_control = super::plate_targets(scenario);
     let plate_scale = distinct(&plate_control);
     for (k, pose) in scenario.plate.images.iter().enumerate() {
         let image = format!("p{}", k + 1);

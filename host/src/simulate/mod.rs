@@ -78,6 +78,14 @@ pub fn field_targets(scenario: &Scenario) -> Vec<(String, Vector3<f64>)> {
     out
 }
 
+/// The calibration plate's control points (plate frame), labelled C01, C02, ….
+pub fn plate_targets(scenario: &Scenario) -> Vec<(String, Vector3<f64>)> {
+    let control = scenario.plate.control.iter().enumerate();
+    control
+        .map(|(i, c)| (format!("C{:02}", i + 1), Vector3::from(*c)))
+        .collect()
+}
+
 /// The stations' true exterior orientations, labelled s1, s2, …: the first looks straight down
 /// on the field's centre, the others sit on a cone of half-angle `convergence` and look at it.
 pub fn field_stations(scenario: &Scenario) -> Vec<(String, ExteriorOrientation<f64>)> {
@@ -215,13 +223,7 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
     let r_cam_proj = rotation_matrix(pk, pp, po);
     let rays = rig.pattern.rays(&r_cam_proj);
     let centre_cam = Vector3::from(rig.projector_centre);
-    let plate_control_true: Vec<(String, Vector3<f64>)> = scenario
-        .plate
-        .control
-        .iter()
-        .enumerate()
-        .map(|(i, c)| (format!("C{:02}", i + 1), Vector3::from(*c)))
-        .collect();
+    let plate_control_true = plate_targets(scenario);
     let mut plate_obs = Vec::new();
     for (k, pose) in scenario.plate.images.iter().enumerate() {
         let image = format!("p{}", k + 1);
