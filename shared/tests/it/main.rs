@@ -1,0 +1,3 @@
+//! The shared crate's integration tests, one binary: each module is one former test file.
+mod protocol_golden;
+mod rig;

@@ -1,0 +1,8 @@
+//! The tests crate's integration tests, one binary: each module is one former test file.
+mod bad_frames;
+mod device_accuracy;
+mod device_identify;
+mod device_qemu;
+mod firmware_smoke;
+mod link_budget;
+mod upload_power_cut;
