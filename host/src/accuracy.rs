@@ -8,8 +8,9 @@
 //! y up, z backwards), which does not depend on how well the 1st image was resected.
 
 use crate::compare::{assess, sample_std_about};
+use crate::plates::plate_images;
 use crate::projector_calibration::{
-    calibrate_projector, plane_points, plate_images, Model, PlateImage, ProjectorCalibration,
+    calibrate_projector, plane_points, Model, PlateImage, ProjectorCalibration,
 };
 use crate::reconstruct::{calibration_covariance, covariance, reconstruct};
 use crate::simulate::Simulation;
@@ -30,7 +31,7 @@ pub fn plate_poses(
     grid: &PixelGrid<f64>,
     inner: &InnerOrientation<f64>,
 ) -> Result<Vec<(String, ExteriorOrientation<f64>)>> {
-    crate::resection::resect_images(
+    crate::plates::resect_images(
         std::path::Path::new("plate_obs.csv"),
         grid,
         inner,

@@ -6,13 +6,12 @@ use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
+use crate::plates::{plate_images, resect_images};
 use crate::ply::{write_ply, Encoding};
 use crate::projector_calibration::{
-    calibrate_projector as calibrate_projector_images, check_raised_control, plate_images,
-    DotObservation, Model,
+    calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
 };
 use crate::reconstruct::reconstruct as reconstruct_points;
-use crate::resection::resect_images;
 use crate::system::SystemContent;
 use crate::system::SystemFile;
 use anyhow::{bail, Result};

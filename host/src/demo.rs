@@ -9,7 +9,8 @@
 //! 5. Write `cloud.ply`, `report.md`, `report.json`, `residuals.svg` and `plate_errors.svg`.
 
 use crate::accuracy::{against_truth, calibrate_simulation, paper_experiment, truth_figures};
-use crate::bundle::{build_problem, calibrate, CalibrationOptions};
+use crate::bundle::{calibrate, CalibrationOptions};
+use crate::camera_calibration::{build_problem, camera_file};
 use crate::compare::sample_std_about;
 use crate::io::atomic::write_atomic;
 use crate::link::Device;
@@ -210,7 +211,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     )?;
     let bundle =
         calibrate(problem, &options).map_err(|e| anyhow::anyhow!("bundle adjustment: {e}"))?;
-    let camera_file = bundle.camera_file(&sim.camera_obs);
+    let camera_file = camera_file(&bundle, &sim.camera_obs);
     let inner = camera_file.inner();
     steps.inc(1);
 

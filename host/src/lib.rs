@@ -3,18 +3,17 @@
 #![deny(missing_docs)]
 
 pub mod accuracy;
-pub mod bundle;
+pub mod camera_calibration;
 pub mod cli;
-pub mod compare;
 pub mod demo;
 pub mod device_cli;
 pub mod io;
 pub mod link;
 pub mod measure;
+pub mod plates;
 pub mod ply;
-pub mod projector_calibration;
-pub mod reconstruct;
-pub mod resection;
 pub mod simulate;
 pub mod svg;
 pub mod system;
+
+pub use deltaz_calib::{bundle, compare, projector_calibration, reconstruct, resection};

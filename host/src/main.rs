@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{bundle, cli, demo, device_cli, io, measure, resection, simulate};
+use deltaz_host::{bundle, cli, demo, device_cli, io, measure, simulate};
 use std::path::PathBuf;
 
 /// deltaz: structured-light measurement (camera + dot projector).
@@ -448,9 +448,14 @@ fn main() -> anyhow::Result<()> {
             let cam = io::camera_file::read_camera(&camera)?;
             let observations = io::observations::read_observations(&obs)?;
             let control = io::control::read_control(&control)?;
-            let results =
-                resection::resect_images(&obs, &cam.grid(), &cam.inner(), &observations, &control)?;
-            let poses = resection::PosesFile::new(&results);
+            let results = deltaz_host::plates::resect_images(
+                &obs,
+                &cam.grid(),
+                &cam.inner(),
+                &observations,
+                &control,
+            )?;
+            let poses = deltaz_host::plates::PosesFile::new(&results);
             print!("{}", poses.table());
             if let Some(out) = out {
                 io::atomic::write_json_atomic(&out, &poses)?;
@@ -575,8 +580,17 @@ fn main() -> anyhow::Result<()> {
                 }
                 _ => anyhow::bail!("give --obs FILE, or --images DIR with --control FILE"),
             };
-            let file = bundle::calibrate_files(&init, &obs, control.as_deref(), &out, &options)?;
-            print!("{}", bundle::summary(&file, &options.free));
+            let file = deltaz_host::camera_calibration::calibrate_files(
+                &init,
+                &obs,
+                control.as_deref(),
+                &out,
+                &options,
+            )?;
+            print!(
+                "{}",
+                deltaz_host::camera_calibration::summary(&file, &options.free)
+            );
         }
         Command::Device { link, what } => match what {
             DeviceWhat::Ports => device_cli::ports()?,
@@ -626,7 +640,7 @@ fn main() -> anyhow::Result<()> {
                 let sim = simulate::simulate(&scenario, 1);
                 let options = bundle::CalibrationOptions::default();
                 let start = std::time::Instant::now();
-                let problem = bundle::build_problem(
+                let problem = deltaz_host::camera_calibration::build_problem(
                     std::path::Path::new("simulated"),
                     &sim.camera_init.grid(),
                     &sim.camera_init.inner(),
@@ -635,7 +649,7 @@ fn main() -> anyhow::Result<()> {
                     &options,
                 )?;
                 let cal = bundle::calibrate(problem, &options)?;
-                let file = cal.camera_file(&sim.camera_obs);
+                let file = deltaz_host::camera_calibration::camera_file(&cal, &sim.camera_obs);
                 println!(
                     "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm, {} correlations > 0.9",
                     scenario.name,

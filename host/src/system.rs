@@ -21,11 +21,7 @@ use std::path::Path;
 /// The format tag of `system.json`.
 pub const FORMAT: &str = "deltaz.system/1";
 
-/// The rig the device link uploads: f64, rays in a `Vec`.
-pub type SystemRig = Rig<f64, Vec<ProjectorRay<f64>>>;
-
-/// Calibration covariances of the rays by id, with the centre's Z they refer to.
-pub type RayCovariances = std::collections::BTreeMap<u16, LineCovariance>;
+pub use deltaz_calib::reconstruct::{RayCovariances, SystemRig};
 
 /// The camera pose in the rig frame (eq. 3): κ, φ, ω (rad) and X0, Y0, Z0 (mm).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -70,8 +70,7 @@ impl InnerParams {
     }
 }
 
-/// The inner parameters' names, in the order of [`InnerParams::to_array`].
-pub const INNER_NAMES: [&str; 8] = ["f", "cx", "cy", "k1", "k2", "k3", "p1", "p2"];
+pub use deltaz_calib::residual::INNER_NAMES;
 
 impl From<InnerParams> for InnerOrientation<f64> {
     fn from(p: InnerParams) -> Self {

@@ -9,16 +9,7 @@ use std::borrow::Cow;
 use std::collections::HashSet;
 use std::path::Path;
 
-/// A control point with known coordinates.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ControlPoint {
-    /// Its label.
-    pub point: String,
-    /// Coordinates (mm).
-    pub xyz: Vector3<f64>,
-    /// Standard deviation of each coordinate (mm); 0 = fixed (error-free).
-    pub sigma: f64,
-}
+pub use deltaz_calib::input::ControlPoint;
 
 /// Reads a control file, checking columns, finite numbers, sigma ≥ 0 and unique labels.
 pub fn read_control(path: &Path) -> Result<Vec<ControlPoint>> {

@@ -6,15 +6,16 @@
 //! the layout match does not yet find a start (it reports an error rather than a wrong labelling).
 
 use deltaz_host::accuracy::{paper_experiment, Calibrated};
-use deltaz_host::bundle::{build_problem, calibrate, CalibrationOptions};
+use deltaz_host::bundle::{calibrate, CalibrationOptions};
+use deltaz_host::camera_calibration::{build_problem, camera_file};
 use deltaz_host::io::observations::{read_observations, Observation, PointKind};
 use deltaz_host::measure::identify_images::{
     drop_single_plane_rays, identify_images, image_files, DotGrid,
 };
 use deltaz_host::measure::layout::Layout;
 use deltaz_host::measure::MeasureParams;
-use deltaz_host::projector_calibration::{calibrate_projector, plate_images, Model};
-use deltaz_host::resection::resect_images;
+use deltaz_host::plates::{plate_images, resect_images};
+use deltaz_host::projector_calibration::{calibrate_projector, Model};
 use deltaz_host::simulate::images::{write_images, ImageSpec};
 use deltaz_host::simulate::{simulate, Scenario};
 use deltaz_host::system::SystemContent;
@@ -127,7 +128,7 @@ fn paper_scenario_from_images_to_points() {
     )
     .unwrap();
     let camera = calibrate(problem, &options).unwrap();
-    let file = camera.camera_file(&field_obs.observations);
+    let file = camera_file(&camera, &field_obs.observations);
     let (estimated, true_inner) = (file.inner.to_array(), sim.truth.camera.inner.to_array());
     println!(
         "camera: f, cx, cy, k1 {:?} (true {:?}), σ0 {:.5} mm",

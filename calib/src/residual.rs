@@ -22,6 +22,29 @@ pub const INNER: usize = 8;
 /// The pose block's size.
 pub const POSE: usize = 6;
 
+/// The inner parameters' names, in the order of [`inner_to_array`].
+pub const INNER_NAMES: [&str; INNER] = ["f", "cx", "cy", "k1", "k2", "k3", "p1", "p2"];
+
+/// The inner parameters in the order f, cx, cy, k1, k2, k3, p1, p2.
+pub fn inner_to_array(p: &InnerOrientation<f64>) -> [f64; INNER] {
+    [p.f, p.cx, p.cy, p.k1, p.k2, p.k3, p.p1, p.p2]
+}
+
+/// The inner orientation from values in the order of [`INNER_NAMES`].
+pub fn inner_from_array(a: [f64; INNER]) -> InnerOrientation<f64> {
+    let [f, cx, cy, k1, k2, k3, p1, p2] = a;
+    InnerOrientation {
+        f,
+        cx,
+        cy,
+        k1,
+        k2,
+        k3,
+        p1,
+        p2,
+    }
+}
+
 /// A residual's value and its derivatives by parameter block.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImageResidual {
@@ -175,14 +198,12 @@ mod tests {
         };
         let mut worst = 0.0_f64;
         for k in 0..INNER {
-            let mut a = crate::io::camera_file::InnerParams::from(inner).to_array();
+            let mut a = inner_to_array(&inner);
             let h = 1e-6 * a[k].abs().max(1e-7);
             a[k] += h;
-            let up: InnerOrientation<f64> =
-                crate::io::camera_file::InnerParams::from_array(a).into();
+            let up = inner_from_array(a);
             a[k] -= 2.0 * h;
-            let down: InnerOrientation<f64> =
-                crate::io::camera_file::InnerParams::from_array(a).into();
+            let down = inner_from_array(a);
             let num = (value(&up, &pose, &point) - value(&down, &pose, &point)) / (2.0 * h);
             let scale = res.d_inner.column(k).norm().max(1.0);
             worst = worst.max((num - res.d_inner.column(k)).norm() / scale);

@@ -13,7 +13,7 @@
 //! covariance of the camera parameters (σ0² = vᵀPv / redundancy).
 
 use super::problem::Problem;
-use super::residual::{image_residual, INNER, POSE};
+use crate::residual::{image_residual, INNER, POSE};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 /// Why the adjustment failed.

@@ -6,8 +6,7 @@
 //! the layout is queried through [`Problem::state_index_inner`], [`Problem::state_index_pose`] and
 //! [`Problem::num_states_camera`], never hard-coded.
 
-use super::residual::{INNER, POSE};
-use crate::io::camera_file::InnerParams;
+use crate::residual::{inner_from_array, inner_to_array, INNER, INNER_NAMES, POSE};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use nalgebra::{Vector2, Vector3};
@@ -128,7 +127,7 @@ impl Problem {
     pub fn camera_state_names(&self) -> Vec<String> {
         const POSE_NAMES: [&str; POSE] = ["kappa", "phi", "omega", "X0", "Y0", "Z0"];
         let mut names = vec![String::new(); self.num_states_camera()];
-        for (k, name) in crate::io::camera_file::INNER_NAMES.iter().enumerate() {
+        for (k, name) in INNER_NAMES.iter().enumerate() {
             if let Some(s) = self.state_index_inner(k) {
                 names[s] = (*name).to_owned();
             }
@@ -145,13 +144,13 @@ impl Problem {
 
     /// Applies a camera-state step and point steps.
     pub fn apply(&mut self, camera_step: &[f64], point_steps: &[Vector3<f64>]) {
-        let mut a = InnerParams::from(self.inner).to_array();
+        let mut a = inner_to_array(&self.inner);
         for (k, value) in a.iter_mut().enumerate() {
             if let Some(s) = self.state_index_inner(k) {
                 *value += camera_step[s];
             }
         }
-        self.inner = InnerParams::from_array(a).into();
+        self.inner = inner_from_array(a);
         for i in 0..self.poses.len() {
             let step: [f64; POSE] = std::array::from_fn(|k| {
                 self.state_index_pose(i, k).map_or(0.0, |s| camera_step[s])

@@ -16,7 +16,6 @@
 //! Because every image has its own resected pose, the planes need not be parallel and the
 //! displacement between images need not be known.
 
-use crate::io::observations::{Observation, PointKind};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
@@ -66,7 +65,7 @@ pub struct PlateImage {
 }
 
 /// Which projector model to fit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Model {
     /// Steps 6 and 7 of the paper: centre by eqs (11)-(12), cosines averaged over planes.
@@ -75,6 +74,22 @@ pub enum Model {
     Joint,
     /// Every ray a free 3D line; the centre (from the joint adjustment) only anchors the offsets.
     Noncentral,
+}
+
+impl std::str::FromStr for Model {
+    type Err = String;
+
+    /// `paper`, `joint` or `noncentral`.
+    fn from_str(text: &str) -> std::result::Result<Self, String> {
+        match text {
+            "paper" => Ok(Model::Paper),
+            "joint" => Ok(Model::Joint),
+            "noncentral" => Ok(Model::Noncentral),
+            _ => Err(format!(
+                "unknown projector model {text:?}: paper, joint or noncentral"
+            )),
+        }
+    }
 }
 
 /// One calibrated ray with its fit residuals.
@@ -204,42 +219,6 @@ pub fn check_raised_control(control: &[(String, Vector3<f64>)]) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// The plate images of an observation file: for each resected image (in the given order) its
-/// `dot` observations, the plate surface at Z = 0 of the plate frame. A dot label that is not a
-/// ray id names its line; an image without dots is an error.
-pub fn plate_images(
-    observations: &[Observation],
-    poses: &[(String, ExteriorOrientation<f64>)],
-) -> Result<Vec<PlateImage>> {
-    poses
-        .iter()
-        .map(|(image, exterior)| {
-            let dots = observations
-                .iter()
-                .filter(|o| &o.image == image && o.kind == PointKind::Dot)
-                .map(|o| {
-                    let id = o.ray_id().with_context(|| {
-                        format!("line {}: dot label {:?} is not a ray id", o.line, o.point)
-                    })?;
-                    Ok(DotObservation {
-                        id,
-                        col: o.col,
-                        row: o.row,
-                    })
-                })
-                .collect::<Result<Vec<_>>>()?;
-            if dots.is_empty() {
-                bail!("image {image:?} has no projected dots");
-            }
-            Ok(PlateImage {
-                exterior: *exterior,
-                plate: Plane::at_z(0.0),
-                dots,
-            })
-        })
-        .collect()
 }
 
 /// One dot's point on one plane, in the rig frame.
@@ -594,11 +573,9 @@ mod tests {
 
     /// Table 3's centre (global) and Table 4's nine rays.
     fn truth() -> (Vector3<f64>, Vec<(u16, Vector3<f64>)>) {
-        use crate::simulate::pattern::TABLE4_IDS;
         use deltaz_shared::paper::{table4_direction, TABLE3_GLOBAL};
-        let rays = (0..9)
-            .map(|k| (TABLE4_IDS[k], table4_direction(k)))
-            .collect();
+        const IDS: [u16; 9] = [101, 102, 103, 201, 202, 203, 301, 302, 303];
+        let rays = (0..9).map(|k| (IDS[k], table4_direction(k))).collect();
         (Vector3::from(TABLE3_GLOBAL), rays)
     }
 

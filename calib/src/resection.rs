@@ -3,22 +3,16 @@
 //!
 //! 1. A closed-form start: the DLT (11 parameters, ≥ 6 non-coplanar points) or, for a planar set
 //!    (≥ 4 points), the homography of the plane decomposed into rotation and translation.
-//! 2. Gauss-Newton on κ, φ, ω, X0, Y0, Z0 with the residual of [`crate::bundle::residual`]
+//! 2. Gauss-Newton on κ, φ, ω, X0, Y0, Z0 with the residual of [`crate::residual`]
 //!    (inner orientation known), control held fixed.
 //! 3. σ of each parameter from σ0² (JᵀJ)⁻¹, σ0² = vᵀv / (2n − 6).
 
-use crate::bundle::residual::{image_residual, POSE};
-use crate::io::camera_file::{PoseParams, Station};
-use crate::io::control::ControlPoint;
-use crate::io::observations::{Observation, PointKind};
-use crate::io::FileError;
+use crate::residual::{image_residual, POSE};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::rotation::angles_from_matrix;
 use nalgebra::{DMatrix, Matrix3, SMatrix, SVector, Vector2, Vector3};
-use std::collections::HashMap;
 use std::fmt;
-use std::path::Path;
 
 /// Why a resection failed.
 #[derive(Debug, Clone, PartialEq)]
@@ -72,20 +66,6 @@ pub struct ResectionResult {
     pub iterations: usize,
     /// Points used.
     pub points: usize,
-}
-
-impl ResectionResult {
-    /// As a station record of `camera.json`.
-    pub fn station(&self, image: &str) -> Station {
-        Station {
-            image: image.to_owned(),
-            pose: self.exterior.into(),
-            sigma: Some(PoseParams::from_array(self.sigma)),
-            sigma0: Some(self.sigma0),
-            rms_px: Some(self.rms_px),
-            observations: Some(self.points),
-        }
-    }
 }
 
 /// Resects one image: `points` are (observed pixel (col, row), world coordinates) pairs.
@@ -169,7 +149,7 @@ fn normalised(inner: &InnerOrientation<f64>, observed: &[Vector2<f64>]) -> Vec<V
 }
 
 /// The closed-form start: DLT or plane homography.
-fn closed_form(
+pub fn closed_form(
     inner: &InnerOrientation<f64>,
     observed: &[Vector2<f64>],
     world: &[Vector3<f64>],
@@ -360,225 +340,5 @@ fn refine(
         pose.omega += step[2];
         pose.centre += step.fixed_rows::<3>(3);
         iterations += 1;
-    }
-}
-
-/// Resects every image of an observation file from a control file. Dots are skipped; a target
-/// that is not in the control file is an error naming the observation's line.
-pub fn resect_images(
-    obs_path: &Path,
-    grid: &PixelGrid<f64>,
-    inner: &InnerOrientation<f64>,
-    observations: &[Observation],
-    control: &[ControlPoint],
-) -> anyhow::Result<Vec<(String, ResectionResult)>> {
-    let known: HashMap<&str, Vector3<f64>> =
-        control.iter().map(|c| (c.point.as_str(), c.xyz)).collect();
-    let mut out = Vec::new();
-    for image in crate::io::observations::image_labels(observations) {
-        let mut points = Vec::new();
-        for o in observations.iter().filter(|o| o.image == image) {
-            if o.kind == PointKind::Dot {
-                continue;
-            }
-            let xyz = known.get(o.point.as_str()).ok_or_else(|| {
-                FileError::at(
-                    obs_path,
-                    o.line,
-                    format!("unknown point {:?}: not in the control file", o.point),
-                )
-            })?;
-            points.push((Vector2::new(o.col, o.row), *xyz));
-        }
-        let result = resect(grid, inner, &points)
-            .map_err(|e| anyhow::anyhow!("image {image:?}: cannot resect: {e}"))?;
-        out.push((image, result));
-    }
-    Ok(out)
-}
-
-/// The format tag of a resection's output file.
-pub const POSES_FORMAT: &str = "deltaz.poses/1";
-
-/// `deltaz resect`'s output: one station per image, with σ, σ0 and RMS.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct PosesFile {
-    /// Always [`POSES_FORMAT`].
-    pub format: String,
-    /// The resected images.
-    pub stations: Vec<Station>,
-}
-
-impl PosesFile {
-    /// The file for resection results.
-    pub fn new(results: &[(String, ResectionResult)]) -> Self {
-        Self {
-            format: POSES_FORMAT.to_owned(),
-            stations: results.iter().map(|(i, r)| r.station(i)).collect(),
-        }
-    }
-
-    /// A human-readable table of the poses with their σ.
-    pub fn table(&self) -> String {
-        let mut t = String::from(
-            "image      kappa(rad)         phi(rad)           omega(rad)         X0(mm)              Y0(mm)              Z0(mm)              rms(px)\n",
-        );
-        for s in &self.stations {
-            t.push_str(&format!("{:<8}", s.image));
-            let sigma = s.sigma.unwrap_or_default().to_array();
-            for (k, (v, sd)) in s.pose.to_array().iter().zip(sigma).enumerate() {
-                if k < 3 {
-                    t.push_str(&format!(" {v:>9.5} ±{sd:<7.5}"));
-                } else {
-                    t.push_str(&format!(" {v:>9.3} ±{sd:<8.3}"));
-                }
-            }
-            t.push_str(&format!(" {:.3}\n", s.rms_px.unwrap_or(f64::NAN)));
-        }
-        t
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::simulate::{simulate, true_camera, Scenario};
-
-    fn plate_points(
-        sim: &crate::simulate::Simulation,
-        image: &str,
-        truth_control: bool,
-    ) -> Vec<(Vector2<f64>, Vector3<f64>)> {
-        sim.plate_obs
-            .iter()
-            .filter(|o| o.image == image && o.kind == PointKind::Control)
-            .map(|o| {
-                let xyz = if truth_control {
-                    sim.truth.point(&o.point).unwrap()
-                } else {
-                    sim.plate_control
-                        .iter()
-                        .find(|c| c.point == o.point)
-                        .unwrap()
-                        .xyz
-                };
-                (Vector2::new(o.col, o.row), xyz)
-            })
-            .collect()
-    }
-
-    /// The paper's three plate images (0.5 px noise, noisy control as written to the files)
-    /// recover Table 2's poses within 3σ, and σ0 is near the simulated 0.5 px.
-    #[test]
-    fn paper_plate_images_recover_table2_within_3_sigma() {
-        let scenario = Scenario::paper();
-        let (grid, inner) = true_camera(&scenario);
-        for seed in 1..=5 {
-            let sim = simulate(&scenario, seed);
-            for (k, truth) in scenario.plate.images.iter().enumerate() {
-                let image = format!("p{}", k + 1);
-                let res = resect(&grid, &inner, &plate_points(&sim, &image, false)).unwrap();
-                let est = PoseParams::from(res.exterior).to_array();
-                for (j, (e, t)) in est.iter().zip(truth.to_array()).enumerate() {
-                    let z = (e - t) / res.sigma[j];
-                    assert!(
-                        z.abs() < 3.0,
-                        "seed {seed} {image} param {j}: {e} vs {t}, {z:.2}σ"
-                    );
-                }
-                let s0_px = res.sigma0 / grid.pixel_size;
-                assert!((0.25..0.8).contains(&s0_px), "σ0 {s0_px} px");
-            }
-        }
-    }
-
-    /// Without noise the closed-form start alone is exact for both the DLT and the homography.
-    #[test]
-    fn closed_form_is_exact_without_noise() {
-        let mut scenario = Scenario::paper();
-        scenario.noise.image_sigma_px = 0.0;
-        let (grid, inner) = true_camera(&scenario);
-        let sim = simulate(&scenario, 1);
-        let pts = plate_points(&sim, "p1", true);
-        let truth: ExteriorOrientation<f64> = scenario.plate.images[0].into();
-        let check = |pts: &[(Vector2<f64>, Vector3<f64>)]| {
-            let obs: Vec<_> = pts
-                .iter()
-                .map(|(p, _)| grid.pixel_to_photo(p.x, p.y))
-                .collect();
-            let world: Vec<_> = pts.iter().map(|(_, x)| *x).collect();
-            let start = closed_form(&inner, &obs, &world).unwrap();
-            assert!(
-                (start.centre - truth.centre).amax() < 1e-6,
-                "{}",
-                start.centre
-            );
-            assert!((start.r_cam_world() - truth.r_cam_world()).amax() < 1e-9);
-        };
-        check(&pts);
-        let flat: Vec<_> = pts.iter().copied().filter(|(_, x)| x.z == 0.0).collect();
-        assert!(flat.len() >= 4);
-        check(&flat);
-        let res = resect(&grid, &inner, &flat).unwrap();
-        assert!((res.exterior.centre - truth.centre).amax() < 1e-6);
-    }
-
-    #[test]
-    fn unsolvable_configurations_say_why() {
-        let scenario = Scenario::paper();
-        let (grid, inner) = true_camera(&scenario);
-        let sim = simulate(&scenario, 1);
-        let pts = plate_points(&sim, "p1", true);
-        assert_eq!(
-            resect(&grid, &inner, &pts[..3]),
-            Err(ResectionError::TooFewPoints {
-                given: 3,
-                needed: 4
-            })
-        );
-        let line: Vec<_> = pts.iter().copied().filter(|(_, x)| x.y == -40.0).collect();
-        assert!(line.len() >= 4);
-        assert_eq!(resect(&grid, &inner, &line), Err(ResectionError::Collinear));
-        // Mirror the control through the camera: every point now lies behind it.
-        let c = Vector3::from(
-            scenario.plate.images[0].to_array()[3..]
-                .try_into()
-                .unwrap_or([0.0; 3]),
-        );
-        let behind: Vec<_> = pts.iter().map(|(p, x)| (*p, 2.0 * c - x)).collect();
-        assert_eq!(
-            resect(&grid, &inner, &behind),
-            Err(ResectionError::BehindCamera)
-        );
-        let mut nan = pts.clone();
-        nan[0].1.x = f64::NAN;
-        assert_eq!(resect(&grid, &inner, &nan), Err(ResectionError::NotFinite));
-    }
-
-    #[test]
-    fn resect_images_names_unknown_points_and_images() {
-        let scenario = Scenario::paper();
-        let (grid, inner) = true_camera(&scenario);
-        let sim = simulate(&scenario, 1);
-        let path = Path::new("plate_obs.csv");
-        let all = resect_images(path, &grid, &inner, &sim.plate_obs, &sim.plate_control).unwrap();
-        assert_eq!(all.len(), 3);
-        let mut obs = sim.plate_obs.clone();
-        obs[1].point = "C99".into();
-        obs[1].line = 3;
-        let e = resect_images(path, &grid, &inner, &obs, &sim.plate_control).unwrap_err();
-        assert!(
-            e.to_string()
-                .contains("plate_obs.csv:3: unknown point \"C99\""),
-            "{e}"
-        );
-        let few: Vec<_> = sim
-            .plate_obs
-            .iter()
-            .filter(|o| o.image != "p2" || o.point.as_str() < "C05")
-            .cloned()
-            .collect();
-        let e = resect_images(path, &grid, &inner, &few, &sim.plate_control).unwrap_err();
-        assert!(e.to_string().contains("image \"p2\": cannot resect"), "{e}");
     }
 }

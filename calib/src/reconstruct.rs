@@ -7,11 +7,18 @@
 
 use crate::projector_calibration::DotObservation;
 use crate::projector_calibration::LineCovariance;
-use crate::system::{RayCovariances, SystemRig};
 use anyhow::{Context, Result};
 use deltaz_shared::intersection::{closest_approach, intersect_paper};
+use deltaz_shared::projector::ProjectorRay;
 use deltaz_shared::rig::Method;
+use deltaz_shared::rig::Rig;
 use nalgebra::{Matrix3, Matrix3x2, Vector3};
+
+/// The calibrated rig in f64 with its rays in a `Vec` (what `system.json` describes).
+pub type SystemRig = Rig<f64, Vec<ProjectorRay<f64>>>;
+
+/// Calibration covariances of the rays by id.
+pub type RayCovariances = std::collections::BTreeMap<u16, LineCovariance>;
 
 /// One reconstructed dot.
 #[derive(Debug, Clone, Copy, PartialEq)]
