@@ -1,11 +1,16 @@
 //! Space resection: the exterior orientation of one image from known control (section 5.2,
 //! step 4, Table 2).
 //!
-//! 1. A closed-form start: the DLT (11 parameters, ≥ 6 non-coplanar points) or, for a planar set
-//!    (≥ 4 points), the homography of the plane decomposed into rotation and translation.
-//! 2. Gauss-Newton on κ, φ, ω, X0, Y0, Z0 with the residual of [`crate::residual`]
-//!    (inner orientation known), control held fixed.
-//! 3. σ of each parameter from σ0² (JᵀJ)⁻¹, σ0² = vᵀv / (2n − 6).
+//! 1. Closed-form starts for any configuration with a unique solution ([`closed_form_starts`]):
+//!    the homography of the dominant plane decomposed into rotation and translation (all points
+//!    in one plane, or a plane with a few raised points: ≥ 4 points in the plane), and the DLT
+//!    (11 parameters, ≥ 6 points off one plane). Each is refined; the one with the smallest
+//!    weighted residual wins, so a weak DLT (few raised points) cannot spoil a good planar start.
+//! 2. Gauss-Newton (with step halving) on κ, φ, ω, X0, Y0, Z0 with the residual of
+//!    [`crate::residual`] (inner orientation known), control held fixed but weighted by its σ:
+//!    an image point's variance is σ_image² + (f / depth)² σ_control².
+//! 3. σ of each parameter from σ0² (JᵀPJ)⁻¹, σ0² = vᵀPv / (2n − 6) (P relative to the image
+//!    noise, so σ0 is in mm in the image).
 
 use crate::residual::{image_residual, POSE};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
@@ -32,6 +37,14 @@ pub enum ResectionError {
     NotFinite,
     /// Gauss-Newton did not converge.
     NoConvergence,
+    /// The best pose leaves residuals far above the image noise: the control does not fit the
+    /// image (mislabelled points, or control mirrored through the camera).
+    PoorFit {
+        /// Residual RMS (px).
+        rms_px: f64,
+        /// The image noise expected (px).
+        expected_px: f64,
+    },
 }
 
 impl fmt::Display for ResectionError {
@@ -45,6 +58,14 @@ impl fmt::Display for ResectionError {
             ResectionError::BehindCamera => f.write_str("the control points lie behind the camera"),
             ResectionError::NotFinite => f.write_str("a coordinate is NaN or infinite"),
             ResectionError::NoConvergence => f.write_str("the least-squares refinement diverged"),
+            ResectionError::PoorFit {
+                rms_px,
+                expected_px,
+            } => write!(
+                f,
+                "the control does not fit the image: residual RMS {rms_px:.2} px for {expected_px} px \
+                 image noise (mislabelled points, or control on the wrong side of the camera?)"
+            ),
         }
     }
 }
@@ -68,25 +89,80 @@ pub struct ResectionResult {
     pub points: usize,
 }
 
-/// Resects one image: `points` are (observed pixel (col, row), world coordinates) pairs.
+/// A control point as seen in one image: the observed pixel (col, row), its coordinates and
+/// their σ (mm per coordinate; 0 = exact).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sighting {
+    /// Observed pixel (col, row).
+    pub pixel: Vector2<f64>,
+    /// Control coordinates (mm).
+    pub xyz: Vector3<f64>,
+    /// σ of each coordinate (mm).
+    pub sigma: f64,
+}
+
+/// Resects one image: `points` are (observed pixel (col, row), world coordinates) pairs, the
+/// control taken as exact.
 pub fn resect(
     grid: &PixelGrid<f64>,
     inner: &InnerOrientation<f64>,
     points: &[(Vector2<f64>, Vector3<f64>)],
 ) -> Result<ResectionResult, ResectionError> {
+    let sightings: Vec<Sighting> = points
+        .iter()
+        .map(|(pixel, xyz)| Sighting {
+            pixel: *pixel,
+            xyz: *xyz,
+            sigma: 0.0,
+        })
+        .collect();
+    best_pose(grid, inner, &sightings, 1.0)
+}
+
+/// Resects one image from control with σ; `image_sigma_px` is the image noise the control's σ
+/// is weighed against. Every closed-form start is refined, the smallest weighted residual wins;
+/// a σ0 above 5 × the image noise is a [`ResectionError::PoorFit`].
+pub fn resect_control(
+    grid: &PixelGrid<f64>,
+    inner: &InnerOrientation<f64>,
+    points: &[Sighting],
+    image_sigma_px: f64,
+) -> Result<ResectionResult, ResectionError> {
+    let result = best_pose(grid, inner, points, image_sigma_px)?;
+    if result.sigma0 > 5.0 * image_sigma_px * grid.pixel_size {
+        return Err(ResectionError::PoorFit {
+            rms_px: result.rms_px,
+            expected_px: image_sigma_px,
+        });
+    }
+    Ok(result)
+}
+
+/// Every closed-form start refined; the smallest vᵀPv wins.
+fn best_pose(
+    grid: &PixelGrid<f64>,
+    inner: &InnerOrientation<f64>,
+    points: &[Sighting],
+    image_sigma_px: f64,
+) -> Result<ResectionResult, ResectionError> {
     if points
         .iter()
-        .any(|(p, x)| !p.iter().chain(x.iter()).all(|v| v.is_finite()))
+        .any(|p| !p.pixel.iter().chain(p.xyz.iter()).all(|v| v.is_finite()) || !p.sigma.is_finite())
     {
         return Err(ResectionError::NotFinite);
     }
-    let observed: Vec<Vector2<f64>> = points
-        .iter()
-        .map(|(p, _)| grid.pixel_to_photo(p.x, p.y))
-        .collect();
-    let world: Vec<Vector3<f64>> = points.iter().map(|(_, x)| *x).collect();
-    let start = closed_form(inner, &observed, &world)?;
-    refine(grid, inner, &observed, &world, start)
+    let obs = Observed::new(grid, points, image_sigma_px);
+    let mut best: Option<(f64, ResectionResult)> = None;
+    let mut failure = None;
+    for start in closed_form_starts(inner, &obs.photo, &obs.world)? {
+        match refine(grid, inner, &obs, start) {
+            Ok((cost, r)) if best.as_ref().is_none_or(|b| cost < b.0) => best = Some((cost, r)),
+            Ok(_) => {}
+            Err(e) => failure = Some(e),
+        }
+    }
+    best.map(|b| b.1)
+        .ok_or(failure.unwrap_or(ResectionError::NoConvergence))
 }
 
 /// Resects one image from an approximate pose (no closed-form start): Gauss-Newton from
@@ -103,12 +179,60 @@ pub fn resect_from(
             needed: 4,
         });
     }
-    let observed: Vec<Vector2<f64>> = points
+    let sightings: Vec<Sighting> = points
         .iter()
-        .map(|(p, _)| grid.pixel_to_photo(p.x, p.y))
+        .map(|(pixel, xyz)| Sighting {
+            pixel: *pixel,
+            xyz: *xyz,
+            sigma: 0.0,
+        })
         .collect();
-    let world: Vec<Vector3<f64>> = points.iter().map(|(_, x)| *x).collect();
-    refine(grid, inner, &observed, &world, start)
+    let obs = Observed::new(grid, &sightings, 1.0);
+    refine(grid, inner, &obs, start).map(|r| r.1)
+}
+
+/// Observations in photo coordinates with their control and σ.
+struct Observed {
+    photo: Vec<Vector2<f64>>,
+    world: Vec<Vector3<f64>>,
+    /// σ of the control coordinates relative to the image noise, in object space (mm / mm).
+    relative_sigma: Vec<f64>,
+}
+
+impl Observed {
+    fn new(grid: &PixelGrid<f64>, points: &[Sighting], image_sigma_px: f64) -> Self {
+        let image_sigma = image_sigma_px * grid.pixel_size;
+        Self {
+            photo: points
+                .iter()
+                .map(|p| grid.pixel_to_photo(p.pixel.x, p.pixel.y))
+                .collect(),
+            world: points.iter().map(|p| p.xyz).collect(),
+            relative_sigma: points
+                .iter()
+                .map(|p| {
+                    if p.sigma > 0.0 {
+                        p.sigma / image_sigma
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+        }
+    }
+
+    /// The weights at a pose: σ_image² / (σ_image² + (f / depth)² σ_control²) per point.
+    fn weights(&self, f: f64, pose: &ExteriorOrientation<f64>) -> Vec<f64> {
+        self.world
+            .iter()
+            .zip(&self.relative_sigma)
+            .map(|(x, rel)| {
+                let depth = pose.world_to_camera(x).z.abs().max(f64::MIN_POSITIVE);
+                let scaled = rel * f / depth;
+                1.0 / (1.0 + scaled * scaled)
+            })
+            .collect()
+    }
 }
 
 /// The shape of a point set: its centroid, scale and principal axes (by decreasing spread).
@@ -148,12 +272,36 @@ fn normalised(inner: &InnerOrientation<f64>, observed: &[Vector2<f64>]) -> Vec<V
         .collect()
 }
 
-/// The closed-form start: DLT or plane homography.
-pub fn closed_form(
+/// The points of the dominant plane: the least-squares plane of all points, the farthest point
+/// dropped until every remaining one lies within 1e-3 of the spread of the plane (the plate,
+/// without its raised points). None with fewer than 4 left.
+fn dominant_plane(world: &[Vector3<f64>]) -> Option<Vec<usize>> {
+    let mut kept: Vec<usize> = (0..world.len()).collect();
+    while kept.len() >= 4 {
+        let pts: Vec<Vector3<f64>> = kept.iter().map(|&i| world[i]).collect();
+        let s = shape(&pts);
+        let normal = s.axes.column(2);
+        let (far, distance) = kept
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| (k, (world[i] - s.centroid).dot(&normal).abs()))
+            .max_by(|a, b| a.1.total_cmp(&b.1))?;
+        if distance <= 1e-3 * s.spread.x {
+            return (s.spread.y >= 1e-6 * s.spread.x).then_some(kept);
+        }
+        kept.remove(far);
+    }
+    None
+}
+
+/// The closed-form starts: the homography of the dominant plane (≥ 4 points in it) and, with
+/// ≥ 6 points off one plane, the DLT. Starts that put most points behind the camera are dropped;
+/// when none is left the error says why.
+pub fn closed_form_starts(
     inner: &InnerOrientation<f64>,
     observed: &[Vector2<f64>],
     world: &[Vector3<f64>],
-) -> Result<ExteriorOrientation<f64>, ResectionError> {
+) -> Result<Vec<ExteriorOrientation<f64>>, ResectionError> {
     let n = world.len();
     if n < 4 {
         return Err(ResectionError::TooFewPoints {
@@ -167,30 +315,46 @@ pub fn closed_form(
     }
     let uv = normalised(inner, observed);
     let planar = s.spread.z < 1e-3 * s.spread.x;
-    let (r, centre) = if planar {
-        homography_start(&s, &uv, world)?
-    } else if n < 6 {
+    let mut candidates = Vec::new();
+    if let Some(plane) = dominant_plane(world) {
+        let (uv_p, world_p): (Vec<_>, Vec<_>) = plane.iter().map(|&i| (uv[i], world[i])).unzip();
+        candidates.push(homography_start(&shape(&world_p), &uv_p, &world_p));
+    }
+    if !planar && n >= 6 {
+        candidates.push(dlt_start(&s, &uv, world));
+    }
+    if candidates.is_empty() {
         return Err(ResectionError::TooFewPoints {
             given: n,
             needed: 6,
         });
-    } else {
-        dlt_start(&s, &uv, world)?
-    };
-    let behind = world
-        .iter()
-        .filter(|x| (r * (*x - centre)).z >= 0.0)
-        .count();
-    if behind * 2 > n {
-        return Err(ResectionError::BehindCamera);
     }
-    let (kappa, phi, omega) = angles_from_matrix(&r);
-    Ok(ExteriorOrientation {
-        kappa,
-        phi,
-        omega,
-        centre,
-    })
+    let mut error = ResectionError::BehindCamera;
+    let mut starts = Vec::new();
+    for candidate in candidates {
+        match candidate {
+            Ok((r, centre)) => {
+                let behind = world
+                    .iter()
+                    .filter(|x| (r * (*x - centre)).z >= 0.0)
+                    .count();
+                if behind * 2 <= n {
+                    let (kappa, phi, omega) = angles_from_matrix(&r);
+                    starts.push(ExteriorOrientation {
+                        kappa,
+                        phi,
+                        omega,
+                        centre,
+                    });
+                }
+            }
+            Err(e) => error = e,
+        }
+    }
+    if starts.is_empty() {
+        return Err(error);
+    }
+    Ok(starts)
 }
 
 /// The null vector of a design matrix (right singular vector of the smallest singular value).
@@ -287,58 +451,87 @@ fn homography_start(
     Ok((r, s.centroid - r.transpose() * tau * s.scale))
 }
 
-/// Gauss-Newton on the six pose parameters.
+/// Gauss-Newton on the six pose parameters, weighted (see [`Observed::weights`], taken at the
+/// current pose and renewed at convergence until they settle); a step that raises vᵀPv is
+/// halved. Returns vᵀPv and the result.
 fn refine(
     grid: &PixelGrid<f64>,
     inner: &InnerOrientation<f64>,
-    observed: &[Vector2<f64>],
-    world: &[Vector3<f64>],
+    obs: &Observed,
     start: ExteriorOrientation<f64>,
-) -> Result<ResectionResult, ResectionError> {
-    let n = world.len();
-    let mut pose = start;
-    let mut iterations = 0;
-    loop {
+) -> Result<(f64, ResectionResult), ResectionError> {
+    let n = obs.world.len();
+    // vᵀPv, the normal matrix and the right-hand side at a pose (None if a point is behind).
+    let system = |pose: &ExteriorOrientation<f64>, weights: &[f64]| {
         let mut normal = SMatrix::<f64, POSE, POSE>::zeros();
         let mut rhs = SVector::<f64, POSE>::zeros();
-        let mut vtv = 0.0;
-        for (o, x) in observed.iter().zip(world) {
-            let r = image_residual(inner, o, &pose, x);
-            normal += r.d_pose.transpose() * r.d_pose;
-            rhs -= r.d_pose.transpose() * r.value;
+        let (mut vpv, mut vtv) = (0.0, 0.0);
+        for (i, (o, x)) in obs.photo.iter().zip(&obs.world).enumerate() {
+            let r = image_residual(inner, o, pose, x);
+            let w = weights[i];
+            normal += r.d_pose.transpose() * r.d_pose * w;
+            rhs -= r.d_pose.transpose() * r.value * w;
+            vpv += r.value.norm_squared() * w;
             vtv += r.value.norm_squared();
         }
+        (vpv, vtv, normal, rhs)
+    };
+    let mut pose = start;
+    let mut weights = obs.weights(inner.f, &pose);
+    let mut current = system(&pose, &weights);
+    for iterations in 0..=50 {
+        let (vpv, vtv, normal, rhs) = current;
         let cov_unit = normal.try_inverse().ok_or(ResectionError::Collinear)?;
         let step = cov_unit * rhs;
-        if !step.iter().all(|s| s.is_finite()) || iterations > 50 {
+        if !step.iter().all(|s| s.is_finite()) {
             return Err(ResectionError::NoConvergence);
         }
         let converged =
             step.fixed_rows::<3>(0).amax() < 1e-12 && step.fixed_rows::<3>(3).amax() < 1e-9;
-        if converged || iterations == 50 {
-            if !converged {
-                return Err(ResectionError::NoConvergence);
+        if converged {
+            let renewed = obs.weights(inner.f, &pose);
+            if renewed
+                .iter()
+                .zip(&weights)
+                .any(|(a, b)| (a - b).abs() > 1e-9 * b)
+            {
+                weights = renewed;
+                current = system(&pose, &weights);
+                continue;
             }
-            let dof = (2 * n).saturating_sub(POSE).max(1) as f64;
-            let sigma0 = (vtv / dof).sqrt();
-            let sigma = std::array::from_fn(|k| sigma0 * cov_unit[(k, k)].sqrt());
-            let behind = world.iter().any(|x| pose.world_to_camera(x).z >= 0.0);
-            if behind {
+            if obs.world.iter().any(|x| pose.world_to_camera(x).z >= 0.0) {
                 return Err(ResectionError::BehindCamera);
             }
-            return Ok(ResectionResult {
-                exterior: pose,
-                sigma,
-                sigma0,
-                rms_px: (vtv / (2 * n) as f64).sqrt() / grid.pixel_size,
-                iterations,
-                points: n,
-            });
+            let dof = (2 * n).saturating_sub(POSE).max(1) as f64;
+            let sigma0 = (vpv / dof).sqrt();
+            let sigma = std::array::from_fn(|k| sigma0 * cov_unit[(k, k)].sqrt());
+            return Ok((
+                vpv,
+                ResectionResult {
+                    exterior: pose,
+                    sigma,
+                    sigma0,
+                    rms_px: (vtv / (2 * n) as f64).sqrt() / grid.pixel_size,
+                    iterations,
+                    points: n,
+                },
+            ));
         }
-        pose.kappa += step[0];
-        pose.phi += step[1];
-        pose.omega += step[2];
-        pose.centre += step.fixed_rows::<3>(3);
-        iterations += 1;
+        let mut scale = 1.0;
+        loop {
+            let mut trial = pose;
+            trial.kappa += step[0] * scale;
+            trial.phi += step[1] * scale;
+            trial.omega += step[2] * scale;
+            trial.centre += step.fixed_rows::<3>(3) * scale;
+            let next = system(&trial, &weights);
+            if next.0 <= vpv * (1.0 + 1e-12) || scale < 1e-6 {
+                pose = trial;
+                current = next;
+                break;
+            }
+            scale /= 2.0;
+        }
     }
+    Err(ResectionError::NoConvergence)
 }

@@ -7,10 +7,10 @@ use crate::io::observations::{image_labels, Observation, PointKind};
 use crate::io::FileError;
 use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::{DotObservation, Plane, PlateImage};
-use deltaz_calib::resection::{resect, ResectionResult};
+use deltaz_calib::resection::{resect, resect_control, ResectionResult, Sighting};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
-use nalgebra::{Vector2, Vector3};
+use nalgebra::Vector2;
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -62,8 +62,88 @@ pub fn plate_images(
         .collect()
 }
 
-/// Resects every image of an observation file from a control file. Dots are skipped; a target
-/// that is not in the control file is an error naming the observation's line.
+/// An image left out of a calibration, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LeftOut {
+    /// The image's label.
+    pub image: String,
+    /// What is wrong with it.
+    pub why: String,
+}
+
+/// The images of an observation file resected on the control, and those that could not be.
+#[derive(Debug, Clone)]
+pub struct Resected {
+    /// (image, result) in the file's order.
+    pub results: Vec<(String, ResectionResult)>,
+    /// Images too poorly controlled to resect, with the reason.
+    pub left_out: Vec<LeftOut>,
+}
+
+/// Resects every image of an observation file on the control file, the control weighted by its
+/// σ against the image noise (estimated: the median σ0 of a first pass with exact control).
+/// Dots are skipped; a target that is not in the control file is an error naming the
+/// observation's line; an image that cannot be resected is left out with the reason.
+pub fn resect_all(
+    obs_path: &Path,
+    grid: &PixelGrid<f64>,
+    inner: &InnerOrientation<f64>,
+    observations: &[Observation],
+    control: &[ControlPoint],
+) -> anyhow::Result<Resected> {
+    let known: HashMap<&str, &ControlPoint> =
+        control.iter().map(|c| (c.point.as_str(), c)).collect();
+    let mut images = Vec::new();
+    for image in image_labels(observations) {
+        let mut points = Vec::new();
+        for o in observations.iter().filter(|o| o.image == image) {
+            if o.kind == PointKind::Dot {
+                continue;
+            }
+            let c = known.get(o.point.as_str()).ok_or_else(|| {
+                FileError::at(
+                    obs_path,
+                    o.line,
+                    format!("unknown point {:?}: not in the control file", o.point),
+                )
+            })?;
+            points.push(Sighting {
+                pixel: Vector2::new(o.col, o.row),
+                xyz: c.xyz,
+                sigma: c.sigma,
+            });
+        }
+        images.push((image, points));
+    }
+    let mut first: Vec<f64> = images
+        .iter()
+        .filter_map(|(_, pts)| {
+            let exact: Vec<_> = pts.iter().map(|p| (p.pixel, p.xyz)).collect();
+            resect(grid, inner, &exact).ok().map(|r| r.sigma0)
+        })
+        .collect();
+    first.sort_by(f64::total_cmp);
+    let noise_px = first
+        .get(first.len() / 2)
+        .map_or(0.5, |s0| s0 / grid.pixel_size)
+        .max(1e-3);
+    let mut resected = Resected {
+        results: Vec::new(),
+        left_out: Vec::new(),
+    };
+    for (image, points) in images {
+        match resect_control(grid, inner, &points, noise_px) {
+            Ok(r) => resected.results.push((image, r)),
+            Err(e) => resected.left_out.push(LeftOut {
+                image,
+                why: e.to_string(),
+            }),
+        }
+    }
+    Ok(resected)
+}
+
+/// [`resect_all`] where an image that cannot be resected is an error naming it.
 pub fn resect_images(
     obs_path: &Path,
     grid: &PixelGrid<f64>,
@@ -71,29 +151,11 @@ pub fn resect_images(
     observations: &[Observation],
     control: &[ControlPoint],
 ) -> anyhow::Result<Vec<(String, ResectionResult)>> {
-    let known: HashMap<&str, Vector3<f64>> =
-        control.iter().map(|c| (c.point.as_str(), c.xyz)).collect();
-    let mut out = Vec::new();
-    for image in image_labels(observations) {
-        let mut points = Vec::new();
-        for o in observations.iter().filter(|o| o.image == image) {
-            if o.kind == PointKind::Dot {
-                continue;
-            }
-            let xyz = known.get(o.point.as_str()).ok_or_else(|| {
-                FileError::at(
-                    obs_path,
-                    o.line,
-                    format!("unknown point {:?}: not in the control file", o.point),
-                )
-            })?;
-            points.push((Vector2::new(o.col, o.row), *xyz));
-        }
-        let result = resect(grid, inner, &points)
-            .map_err(|e| anyhow::anyhow!("image {image:?}: cannot resect: {e}"))?;
-        out.push((image, result));
+    let resected = resect_all(obs_path, grid, inner, observations, control)?;
+    if let Some(l) = resected.left_out.first() {
+        bail!("image {:?}: cannot resect: {}", l.image, l.why);
     }
-    Ok(out)
+    Ok(resected.results)
 }
 
 /// The format tag of a resection's output file.
@@ -142,7 +204,8 @@ impl PosesFile {
 mod tests {
     use super::*;
     use crate::simulate::{simulate, true_camera, Scenario};
-    use deltaz_calib::resection::{closed_form, ResectionError};
+    use deltaz_calib::resection::{closed_form_starts, ResectionError};
+    use nalgebra::Vector3;
 
     fn plate_points(
         sim: &crate::simulate::Simulation,
@@ -192,7 +255,8 @@ mod tests {
         }
     }
 
-    /// Without noise the closed-form start alone is exact for both the DLT and the homography.
+    /// Without noise every closed-form start is exact: the DLT and the homography of the plate's
+    /// plane for the whole control, the homography alone for the points in the plane.
     #[test]
     fn closed_form_is_exact_without_noise() {
         let mut scenario = Scenario::paper();
@@ -201,24 +265,27 @@ mod tests {
         let sim = simulate(&scenario, 1);
         let pts = plate_points(&sim, "p1", true);
         let truth: ExteriorOrientation<f64> = scenario.plate.images[0].into();
-        let check = |pts: &[(Vector2<f64>, Vector3<f64>)]| {
+        let check = |pts: &[(Vector2<f64>, Vector3<f64>)], candidates: usize| {
             let obs: Vec<_> = pts
                 .iter()
                 .map(|(p, _)| grid.pixel_to_photo(p.x, p.y))
                 .collect();
             let world: Vec<_> = pts.iter().map(|(_, x)| *x).collect();
-            let start = closed_form(&inner, &obs, &world).unwrap();
-            assert!(
-                (start.centre - truth.centre).amax() < 1e-6,
-                "{}",
-                start.centre
-            );
-            assert!((start.r_cam_world() - truth.r_cam_world()).amax() < 1e-9);
+            let starts = closed_form_starts(&inner, &obs, &world).unwrap();
+            assert_eq!(starts.len(), candidates);
+            for start in starts {
+                assert!(
+                    (start.centre - truth.centre).amax() < 1e-6,
+                    "{}",
+                    start.centre
+                );
+                assert!((start.r_cam_world() - truth.r_cam_world()).amax() < 1e-9);
+            }
         };
-        check(&pts);
+        check(&pts, 2);
         let flat: Vec<_> = pts.iter().copied().filter(|(_, x)| x.z == 0.0).collect();
         assert!(flat.len() >= 4);
-        check(&flat);
+        check(&flat, 1);
         let res = resect(&grid, &inner, &flat).unwrap();
         assert!((res.exterior.centre - truth.centre).amax() < 1e-6);
     }
@@ -239,16 +306,25 @@ mod tests {
         let line: Vec<_> = pts.iter().copied().filter(|(_, x)| x.y == -40.0).collect();
         assert!(line.len() >= 4);
         assert_eq!(resect(&grid, &inner, &line), Err(ResectionError::Collinear));
-        // Mirror the control through the camera: every point now lies behind it.
+        // Mirror the control through the camera: the DLT puts every point behind it, the
+        // plane alone fits a camera turned round, which the raised points contradict by ~10 px.
         let c = Vector3::from(
             scenario.plate.images[0].to_array()[3..]
                 .try_into()
                 .unwrap_or([0.0; 3]),
         );
-        let behind: Vec<_> = pts.iter().map(|(p, x)| (*p, 2.0 * c - x)).collect();
-        assert_eq!(
-            resect(&grid, &inner, &behind),
-            Err(ResectionError::BehindCamera)
+        let behind: Vec<_> = pts
+            .iter()
+            .map(|(p, x)| Sighting {
+                pixel: *p,
+                xyz: 2.0 * c - x,
+                sigma: 0.1,
+            })
+            .collect();
+        let e = resect_control(&grid, &inner, &behind, 0.5).unwrap_err();
+        assert!(
+            matches!(e, ResectionError::PoorFit { rms_px, .. } if rms_px > 5.0),
+            "{e:?}"
         );
         let mut nan = pts.clone();
         nan[0].1.x = f64::NAN;

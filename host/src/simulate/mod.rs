@@ -323,10 +323,12 @@ pub fn write_simulation(dir: &Path, sim: &Simulation) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A scenario by name (`paper`) or from a TOML file.
+/// A scenario by name (`paper`, `desk`) or from a TOML file.
 pub fn load_scenario(name_or_path: &str) -> anyhow::Result<Scenario> {
-    if name_or_path == "paper" {
-        return Ok(Scenario::paper());
+    match name_or_path {
+        "paper" => return Ok(Scenario::paper()),
+        "desk" => return Ok(Scenario::desk()),
+        _ => {}
     }
     let text = std::fs::read_to_string(name_or_path)
         .map_err(|e| anyhow::anyhow!("{name_or_path}: {e}"))?;

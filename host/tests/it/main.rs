@@ -3,6 +3,7 @@ mod accuracy;
 mod cli_calibration;
 mod compare_cli;
 mod demo;
+mod desk;
 mod device_cli;
 mod identify;
 mod images_cli;
