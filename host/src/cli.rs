@@ -2,11 +2,11 @@
 //! (argument parsing stays in `main.rs`).
 
 use crate::compare::{assess, match_points};
-use crate::io::atomic::write_atomic;
+use crate::io::atomic::{write_all_atomic, write_atomic};
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
-use crate::ply::{write_ply, Encoding};
+use crate::ply::{encode as encode_ply, Encoding};
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, plate_images,
     DotObservation, Model,
@@ -142,10 +142,12 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
     } else {
         Encoding::BinaryLittleEndian
     };
-    write_ply(&args.out, &points, encoding)?;
-    if let (Some(path), Some(text)) = (&args.csv, csv) {
-        write_atomic(path, text.as_bytes())?;
+    let ply = encode_ply(&points, encoding);
+    let mut files: Vec<(&Path, &[u8])> = vec![(&args.out, &ply)];
+    if let (Some(path), Some(text)) = (&args.csv, &csv) {
+        files.push((path, text.as_bytes()));
     }
+    write_all_atomic(&files)?;
     println!("{} points -> {}", points.len(), args.out.display());
     Ok(())
 }

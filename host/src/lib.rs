@@ -8,6 +8,7 @@ pub mod cli;
 pub mod compare;
 pub mod demo;
 pub mod device_cli;
+pub mod export;
 pub mod io;
 pub mod link;
 pub mod measure;
