@@ -68,7 +68,7 @@ enum Command {
         #[arg(long)]
         ascii: bool,
         /// Image noise (px, > 0): adds the propagated σ of every point (mm).
-        #[arg(long, value_parser = positive)]
+        #[arg(long, value_parser = positive, allow_negative_numbers = true)]
         sigma_px: Option<f64>,
         /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
         #[arg(long, default_value = "closest")]
@@ -126,7 +126,7 @@ enum Command {
         #[arg(long)]
         far: Option<f64>,
         /// Largest distance of a dot from its ray's epipolar segment (px).
-        #[arg(long, default_value_t = 1.0, value_parser = positive)]
+        #[arg(long, default_value_t = 1.0, value_parser = positive, allow_negative_numbers = true)]
         tolerance: f64,
     },
     /// Timings of image measurement: 768 x 512 with 440 dots, 12 MP with 4,000 dots.
@@ -280,16 +280,16 @@ enum DeviceWhat {
 #[derive(clap::Args)]
 struct DeviceIdentifyArgs {
     /// Nearest surface distance from the camera along its axis (mm), for identifying dots.
-    #[arg(long, requires = "far", value_parser = positive_f32)]
+    #[arg(long, requires = "far", value_parser = positive_f32, allow_negative_numbers = true)]
     near: Option<f32>,
     /// Farthest surface distance from the camera along its axis (mm, beyond --near).
-    #[arg(long, requires = "near", value_parser = positive_f32)]
+    #[arg(long, requires = "near", value_parser = positive_f32, allow_negative_numbers = true)]
     far: Option<f32>,
     /// Largest distance of a dot from its ray's epipolar segment (px).
-    #[arg(long, default_value_t = 1.0, value_parser = positive_f32)]
+    #[arg(long, default_value_t = 1.0, value_parser = positive_f32, allow_negative_numbers = true)]
     identify_tolerance: f32,
     /// Side of the device's lookup grid cells (px).
-    #[arg(long, default_value_t = 16.0, value_parser = positive_f32)]
+    #[arg(long, default_value_t = 16.0, value_parser = positive_f32, allow_negative_numbers = true)]
     identify_cell: f32,
 }
 
@@ -353,7 +353,7 @@ struct ImageFolder {
     #[arg(long, value_delimiter = ',', requires = "images")]
     distinct: Option<Vec<String>>,
     /// With --images: tolerance (px) of the layout match.
-    #[arg(long, default_value_t = 8.0, value_parser = positive)]
+    #[arg(long, default_value_t = 8.0, value_parser = positive, allow_negative_numbers = true)]
     tolerance: f64,
 }
 
@@ -410,7 +410,7 @@ enum CalibrateWhat {
         #[arg(long, default_value = "paper")]
         model: deltaz_host::projector_calibration::Model,
         /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
-        #[arg(long, default_value_t = 0.5, value_parser = positive)]
+        #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
     },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
@@ -446,7 +446,7 @@ enum CalibrateWhat {
         #[arg(long)]
         free_network: bool,
         /// A priori σ of image coordinates (px, > 0), weighting control against images.
-        #[arg(long, default_value_t = 0.5, value_parser = positive)]
+        #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
     },
 }
