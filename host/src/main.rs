@@ -451,6 +451,39 @@ enum CalibrateWhat {
     },
 }
 
+/// The observations file `--images` writes next to `--out` before calibrating: unless the
+/// calibration succeeds, it is put back as it was (removed, or its former content), so that a
+/// failed run leaves no file created or changed.
+struct ObservationsGuard {
+    path: PathBuf,
+    before: Option<Vec<u8>>,
+}
+
+impl ObservationsGuard {
+    fn new(out: &std::path::Path) -> Self {
+        let path = measure::identify_images::observations_path(out);
+        let before = std::fs::read(&path).ok();
+        Self { path, before }
+    }
+
+    /// The calibration succeeded: the file stays.
+    fn keep(mut self) {
+        self.before = std::fs::read(&self.path).ok();
+    }
+}
+
+impl Drop for ObservationsGuard {
+    fn drop(&mut self) {
+        let now = std::fs::read(&self.path).ok();
+        if now != self.before {
+            let _ = match &self.before {
+                Some(bytes) => io::atomic::write_atomic(&self.path, bytes).map_err(|_| ()),
+                None => std::fs::remove_file(&self.path).map_err(|_| ()),
+            };
+        }
+    }
+}
+
 /// Runs the command; any error prints as one `error: ...` chain (never a backtrace, whatever
 /// RUST_BACKTRACE says) and exits with 1, like a bad command line.
 fn main() -> ExitCode {
@@ -616,6 +649,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     image_sigma_px,
                 },
         } => {
+            let leftover = ObservationsGuard::new(&out);
             let obs = match (obs, folder.with_control(&control)) {
                 (Some(obs), _) => obs,
                 (None, Some(folder)) => {
@@ -636,7 +670,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
                 (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
             };
-            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?
+            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?;
+            leftover.keep();
         }
         Command::Calibrate {
             what:
@@ -663,6 +698,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 options.free.inner[k] |= on;
             }
             let folder = control.as_deref().and_then(|c| folder.with_control(c));
+            let leftover = ObservationsGuard::new(&out);
             let obs = match (obs, folder) {
                 (Some(obs), _) => obs,
                 (None, Some(folder)) => {
@@ -679,6 +715,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let file = bundle::calibrate_files(&init, &obs, control.as_deref(), &out, &options)?;
             print!("{}", bundle::summary(&file, &options.free));
+            leftover.keep();
         }
         Command::Device { link, what } => match what {
             DeviceWhat::Ports => device_cli::ports()?,

@@ -11,7 +11,8 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 /// The good files the cases start from: the simulated paper rig (sim/), the true camera
-/// (camera.json), a calibrated system (system.json), the 1st plate image's dots (dots.csv).
+/// (camera.json), a calibrated system (system.json), the 1st plate image's dots (dots.csv),
+/// and the images rendered from the same simulation (in [`images_parent`]).
 fn fixture() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
@@ -22,6 +23,9 @@ fn fixture() -> &'static Path {
         scenario.noise.image_sigma_px = 0.1;
         let sim = simulate(&scenario, 5);
         write_simulation(&dir.join("sim"), &sim).unwrap();
+        let spec = deltaz_host::simulate::images::ImageSpec::default();
+        // The images outside the fixture (not copied for every case).
+        deltaz_host::simulate::images::write_images(&scenario, 5, &spec, &images_parent()).unwrap();
         let (grid, inner) = true_camera(&scenario);
         write_camera(&dir.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
         let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
@@ -55,6 +59,11 @@ fn fixture() -> &'static Path {
         std::fs::write(dir.join("dots.csv"), dots).unwrap();
         dir
     })
+}
+
+/// The fixture's rendered images are in `images/` here.
+fn images_parent() -> PathBuf {
+    Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_images")
 }
 
 /// Every file under `dir` with its bytes.
@@ -198,6 +207,17 @@ fn cases() -> Vec<Case> {
             &["--marker", "\"10\" is not two comma-separated numbers"]),
         case("calibrate projector --camera camera.json --control sim/plate_control.csv --obs none.csv --out sys.json",
             &["none.csv", "No such file"]),
+        // The observations measured from images are written before the calibration fails
+        // (here on its output, a directory): they must not stay behind.
+        case(
+            &format!(
+                "calibrate projector --camera camera.json --images {} --only p \
+                 --control sim/plate_control.csv --out sysdir",
+                images_parent().join("images").display()
+            ),
+            &["sysdir: cannot write: it is a directory"],
+        )
+        .with("sysdir/keep", ""),
         // measure
         case("measure none.png --out m.csv", &["none.png", "No such file"]),
         case("measure fake.png --out m.csv", &["fake.png", "not a PNG, TIFF or JPEG image"]).with("fake.png", "text"),
@@ -232,6 +252,7 @@ fn every_command_refuses_bad_input_cleanly() {
         let dir = root.path().join(format!("case{index}"));
         copy_dir(fixture(), &dir);
         for (name, text) in &case.files {
+            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
             std::fs::write(dir.join(name), text).unwrap();
         }
         let before = snapshot(&dir);
