@@ -2,12 +2,12 @@
 //! (argument parsing stays in `main.rs`).
 
 use crate::compare::{assess, match_points};
-use crate::io::atomic::write_atomic;
+use crate::io::atomic::{write_all_atomic, write_atomic};
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
 use crate::plates::{plate_images, resect_images};
-use crate::ply::{write_ply, Encoding};
+use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
 };
@@ -36,15 +36,55 @@ impl From<MethodArg> for Method {
     }
 }
 
+/// Labelled points of a CSV `point,X,Y,Z` or a PLY cloud (by its extension).
+pub fn read_points(path: &Path) -> Result<Vec<(String, nalgebra::Vector3<f64>)>> {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+    {
+        return Ok(crate::ply::read_points(path)?);
+    }
+    Ok(read_control(path)?
+        .into_iter()
+        .map(|c| (c.point, c.xyz))
+        .collect())
+}
+
+/// Refuses points that (nearly) lie on one line: the similarity's rotation about that line
+/// would be arbitrary. The spread across the line must be at least 1e-3 of the spread along it.
+fn check_not_collinear(path: &Path, points: &[nalgebra::Vector3<f64>]) -> Result<()> {
+    let n = points.len().max(1) as f64;
+    let mean = points.iter().sum::<nalgebra::Vector3<f64>>() / n;
+    let scatter = points
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<nalgebra::Matrix3<f64>>();
+    let mut spread = scatter.symmetric_eigenvalues().map(|v| v.max(0.0).sqrt());
+    spread.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if spread[1] < 1e-3 * spread[0] {
+        bail!(
+            "{}: the matched points are (nearly) collinear (spread {:.3e} mm across their line, \
+             {:.3e} mm along it): the rotation about that line is undetermined",
+            path.display(),
+            spread[1],
+            spread[0]
+        );
+    }
+    Ok(())
+}
+
 /// `deltaz compare`.
 pub fn compare(reconstructed: &Path, reference: &Path, json: bool) -> Result<()> {
-    let read = |p: &Path| -> Result<Vec<(String, nalgebra::Vector3<f64>)>> {
-        Ok(read_control(p)?
-            .into_iter()
-            .map(|c| (c.point, c.xyz))
-            .collect())
-    };
-    let matched = match_points(&read(reconstructed)?, &read(reference)?)?;
+    let matched =
+        match_points(&read_points(reconstructed)?, &read_points(reference)?).map_err(|e| {
+            anyhow::anyhow!(
+                "{} against {}: {e:#}",
+                reconstructed.display(),
+                reference.display()
+            )
+        })?;
+    check_not_collinear(reconstructed, &matched.reconstructed)?;
+    check_not_collinear(reference, &matched.reference)?;
     let a = assess(&matched.reconstructed, &matched.reference)?;
     if json {
         println!(
@@ -141,10 +181,22 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
     } else {
         Encoding::BinaryLittleEndian
     };
-    write_ply(&args.out, &points, encoding)?;
-    if let (Some(path), Some(text)) = (&args.csv, csv) {
-        write_atomic(path, text.as_bytes())?;
+    let images = crate::io::observations::image_labels(&obs);
+    let info = CloudInfo {
+        frame: RIG_FRAME.to_owned(),
+        fingerprint: Some(system.fingerprint.clone()),
+        frames: (images.len() > 1).then(|| {
+            dots.iter()
+                .map(|(image, _)| images.iter().position(|i| i == image).unwrap_or(0) as u32)
+                .collect()
+        }),
+    };
+    let ply = encode_with(&points, encoding, &info);
+    let mut files: Vec<(&Path, &[u8])> = vec![(&args.out, &ply)];
+    if let (Some(path), Some(text)) = (&args.csv, &csv) {
+        files.push((path, text.as_bytes()));
     }
+    write_all_atomic(&files)?;
     println!("{} points -> {}", points.len(), args.out.display());
     Ok(())
 }

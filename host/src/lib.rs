@@ -7,6 +7,7 @@ pub mod camera_calibration;
 pub mod cli;
 pub mod demo;
 pub mod device_cli;
+pub mod export;
 pub mod io;
 pub mod link;
 pub mod measure;

@@ -2,6 +2,7 @@
 use clap::{Parser, Subcommand};
 use deltaz_host::{bundle, cli, demo, device_cli, io, measure, simulate};
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 /// deltaz: structured-light measurement (camera + dot projector).
 #[derive(Parser)]
@@ -33,20 +34,23 @@ enum Command {
         sixteen_bit: bool,
     },
     /// Accuracy assessment (Tables 6-7): 7-parameter similarity, residuals, n−1 std, absolute
-    /// errors with no fit, flatness. Point files are CSV `point,X,Y,Z`, matched by `point`.
+    /// errors with no fit, flatness. Point files are CSV `point,X,Y,Z` (mm), matched by `point`.
+    /// The similarity maps the reconstructed points into the reference frame; residuals, errors
+    /// and flatness are in mm, in the reference frame.
     Compare {
-        /// Reconstructed points.
+        /// Reconstructed points (mm).
         #[arg(long)]
         reconstructed: PathBuf,
-        /// Reference points.
+        /// Reference points (mm).
         #[arg(long)]
         reference: PathBuf,
         /// Print JSON instead of tables.
         #[arg(long)]
         json: bool,
     },
-    /// Reconstruct identified dots (CSV `image,point,col,row[,kind]`, `point` = ray id; with a
-    /// `kind` column only the `dot` rows) into a PLY point cloud.
+    /// Reconstruct identified dots (CSV `image,point,col,row[,kind]` in pixels, `point` = ray id;
+    /// with a `kind` column only the `dot` rows) into a PLY point cloud: X, Y, Z in mm in the rig
+    /// frame (the frame of the 1st plate image of the projector calibration).
     Reconstruct {
         /// The calibrated system (system.json).
         #[arg(long)]
@@ -57,14 +61,14 @@ enum Command {
         /// Output PLY file.
         #[arg(long)]
         out: PathBuf,
-        /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here.
+        /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here (mm).
         #[arg(long)]
         csv: Option<PathBuf>,
         /// ASCII PLY instead of binary.
         #[arg(long)]
         ascii: bool,
-        /// Image noise (px): adds the propagated σ of every point.
-        #[arg(long)]
+        /// Image noise (px, > 0): adds the propagated σ of every point (mm).
+        #[arg(long, value_parser = positive, allow_negative_numbers = true)]
         sigma_px: Option<f64>,
         /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
         #[arg(long, default_value = "closest")]
@@ -122,14 +126,14 @@ enum Command {
         #[arg(long)]
         far: Option<f64>,
         /// Largest distance of a dot from its ray's epipolar segment (px).
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = 1.0, value_parser = positive, allow_negative_numbers = true)]
         tolerance: f64,
     },
     /// Timings of image measurement: 768 x 512 with 440 dots, 12 MP with 4,000 dots.
     BenchMeasure {
-        /// Repetitions (the best is reported).
-        #[arg(long, default_value_t = 3)]
-        repeats: usize,
+        /// Repetitions (the best is reported), 1 to 100.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
+        repeats: u16,
     },
     /// Calibration steps.
     Calibrate {
@@ -144,14 +148,38 @@ enum Command {
         #[command(subcommand)]
         what: DeviceWhat,
     },
+    /// Write a calibration in another program's format.
+    Export {
+        #[command(subcommand)]
+        what: ExportWhat,
+    },
     /// Timings: camera calibration of the paper scenario and of a large network.
     Bench {
-        /// Images of the large network.
-        #[arg(long, default_value_t = 200)]
+        /// Images of the large network, 2 to 5,000.
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(2..=5_000))]
         images: u32,
-        /// Targets of the large network.
-        #[arg(long, default_value_t = 1000)]
+        /// Targets of the large network, 4 to 100,000.
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(4..=100_000))]
         targets: u32,
+    },
+}
+
+#[derive(Subcommand)]
+enum ExportWhat {
+    /// OpenCV's camera file (YAML for cv2.FileStorage): image_width, image_height,
+    /// camera_matrix (px), distortion_coefficients (k1, k2, p1, p2, k3, refitted to OpenCV's
+    /// model; the largest refit error over the sensor is reported in px) and
+    /// extrinsic_parameters, one row rvec (rad) | tvec (mm) per image in OpenCV's camera axes.
+    Opencv {
+        /// A camera calibration (camera.json): its stations become the extrinsics.
+        #[arg(long, required_unless_present = "system", conflicts_with = "system")]
+        camera: Option<PathBuf>,
+        /// A system calibration (system.json): the camera's pose in the rig frame.
+        #[arg(long)]
+        system: Option<PathBuf>,
+        /// Output YAML file (e.g. camera.yml).
+        #[arg(long)]
+        out: PathBuf,
     },
 }
 
@@ -164,9 +192,10 @@ struct LinkOpts {
     /// Baud rate of --port.
     #[arg(long, global = true, default_value_t = 2_000_000)]
     baud: u32,
-    /// Run the firmware in QEMU (mps2-an386) and talk to it over a pty; optionally the ELF.
-    #[arg(long, global = true, num_args = 0..=1,
-          default_missing_value = "target/thumbv7em-none-eabihf/release/mps2_an386")]
+    /// Run the firmware in QEMU (mps2-an386) and talk to it over a pty; `--qemu=ELF` names the
+    /// firmware (default: thumbv7em-none-eabihf/release/mps2_an386 in the build directory that
+    /// holds this program).
+    #[arg(long, global = true, num_args = 0..=1, require_equals = true, default_missing_value = "")]
     qemu: Option<PathBuf>,
     /// Response timeout (ms).
     #[arg(long, global = true, default_value_t = 3000)]
@@ -178,10 +207,26 @@ impl LinkOpts {
         device_cli::LinkArgs {
             port: self.port.clone(),
             baud: self.baud,
-            qemu: self.qemu.clone(),
+            qemu: self.qemu.as_ref().map(|elf| {
+                if elf.as_os_str().is_empty() {
+                    default_firmware_elf()
+                } else {
+                    elf.clone()
+                }
+            }),
             timeout: std::time::Duration::from_millis(self.timeout_ms),
         }
     }
+}
+
+/// The QEMU firmware next to this program: `target/release/deltaz` ->
+/// `target/thumbv7em-none-eabihf/release/mps2_an386`, whatever the working directory.
+fn default_firmware_elf() -> PathBuf {
+    let relative = PathBuf::from("thumbv7em-none-eabihf/release/mps2_an386");
+    std::env::current_exe()
+        .ok()
+        .and_then(|exe| Some(exe.parent()?.parent()?.join(&relative)))
+        .unwrap_or_else(|| PathBuf::from("target").join(relative))
 }
 
 #[derive(Subcommand)]
@@ -209,9 +254,10 @@ enum DeviceWhat {
         /// Observations CSV `image,point,col,row[,kind]` (dot rows; point = ray id).
         #[arg(long, conflicts_with = "simulate")]
         obs: Option<PathBuf>,
-        /// Simulate this many frames of the system's dots on plates Z = 0, 100, 200 mm.
-        #[arg(long)]
-        simulate: Option<usize>,
+        /// Simulate this many frames (1 to 100,000) of the system's dots on plates Z = 0, 100,
+        /// 200 mm.
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+        simulate: Option<u32>,
         /// Output PLY (binary).
         #[arg(long)]
         out: Option<PathBuf>,
@@ -234,27 +280,60 @@ enum DeviceWhat {
 #[derive(clap::Args)]
 struct DeviceIdentifyArgs {
     /// Nearest surface distance from the camera along its axis (mm), for identifying dots.
-    #[arg(long, requires = "far")]
+    #[arg(long, requires = "far", value_parser = positive_f32, allow_negative_numbers = true)]
     near: Option<f32>,
-    /// Farthest surface distance from the camera along its axis (mm), for identifying dots.
-    #[arg(long, requires = "near")]
+    /// Farthest surface distance from the camera along its axis (mm, beyond --near).
+    #[arg(long, requires = "near", value_parser = positive_f32, allow_negative_numbers = true)]
     far: Option<f32>,
     /// Largest distance of a dot from its ray's epipolar segment (px).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = positive_f32, allow_negative_numbers = true)]
     identify_tolerance: f32,
     /// Side of the device's lookup grid cells (px).
-    #[arg(long, default_value_t = 16.0)]
+    #[arg(long, default_value_t = 16.0, value_parser = positive_f32, allow_negative_numbers = true)]
     identify_cell: f32,
 }
 
 impl DeviceIdentifyArgs {
-    fn params(&self) -> Option<deltaz_shared::protocol::calibration::IdentifyParams> {
-        Some(deltaz_shared::protocol::calibration::IdentifyParams {
-            near: self.near?,
-            far: self.far?,
+    fn params(
+        &self,
+    ) -> anyhow::Result<Option<deltaz_shared::protocol::calibration::IdentifyParams>> {
+        let (Some(near), Some(far)) = (self.near, self.far) else {
+            return Ok(None);
+        };
+        anyhow::ensure!(
+            near < far,
+            "--near {near} mm must be less than --far {far} mm"
+        );
+        Ok(Some(deltaz_shared::protocol::calibration::IdentifyParams {
+            near,
+            far,
             tolerance: self.identify_tolerance,
             cell: self.identify_cell,
-        })
+        }))
+    }
+}
+
+/// A `--flag` value that must be a positive finite number (σ, tolerances, distances).
+fn positive(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is not a positive finite number")),
+        Err(_) => Err(format!("{text:?} is not a number")),
+    }
+}
+
+/// [`positive`] for the device's single-precision parameters.
+fn positive_f32(text: &str) -> Result<f32, String> {
+    positive(text).map(|v| v as f32)
+}
+
+/// A `--flag A,B` value: two comma-separated numbers.
+fn pair<T: std::str::FromStr>(text: &str) -> Result<[T; 2], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let parse = |s: &str| s.parse::<T>().map_err(|_| format!("{s:?} is not a number"));
+    match parts[..] {
+        [a, b] => Ok([parse(a)?, parse(b)?]),
+        _ => Err(format!("{text:?} is not two comma-separated numbers A,B")),
     }
 }
 
@@ -262,19 +341,19 @@ impl DeviceIdentifyArgs {
 #[derive(clap::Args)]
 struct ImageFolder {
     /// Measure the targets in this folder's images (PNG, TIFF, JPEG) instead of --obs:
-    /// control targets identified by the layout of --control from its distinct targets
-    /// (see `measure::layout`); the observations are written next to --out (*.obs.csv).
+    /// control targets identified by the layout of --control from its distinct (larger)
+    /// targets; the observations are written next to --out (*.obs.csv).
     #[arg(long, conflicts_with = "obs")]
     images: Option<PathBuf>,
     /// With --images: only the files whose names start with this.
     #[arg(long, default_value = "", requires = "images")]
     only: String,
     /// With --images: the distinct (larger) control targets, comma-separated labels
-    /// (default: the rule of `measure::layout::distinct_targets`, which `simulate` renders).
+    /// (default: the ones `simulate --images` renders larger).
     #[arg(long, value_delimiter = ',', requires = "images")]
     distinct: Option<Vec<String>>,
     /// With --images: tolerance (px) of the layout match.
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, default_value_t = 8.0, value_parser = positive, allow_negative_numbers = true)]
     tolerance: f64,
 }
 
@@ -316,22 +395,22 @@ enum CalibrateWhat {
         #[arg(long, default_value = "paper")]
         pattern: String,
         /// With --images: the marker dot's grid node ROW,COL.
-        #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [10u16, 11])]
-        marker: Vec<u16>,
-        /// With --images: image direction (col,row) in which the pattern's column index grows.
-        #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [1.0, 0.0], allow_negative_numbers = true)]
-        col_dir: Vec<f64>,
-        /// With --images: image direction (col,row) in which the pattern's row index grows.
-        #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.0, -1.0], allow_negative_numbers = true)]
-        row_dir: Vec<f64>,
+        #[arg(long, value_parser = pair::<u16>, default_value = "10,11")]
+        marker: [u16; 2],
+        /// With --images: image direction COL,ROW in which the pattern's column index grows.
+        #[arg(long, value_parser = pair::<f64>, default_value = "1,0", allow_hyphen_values = true)]
+        col_dir: [f64; 2],
+        /// With --images: image direction COL,ROW in which the pattern's row index grows.
+        #[arg(long, value_parser = pair::<f64>, default_value = "0,-1", allow_hyphen_values = true)]
+        row_dir: [f64; 2],
         /// Output system.json.
         #[arg(long)]
         out: PathBuf,
         /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
         #[arg(long, default_value = "paper")]
         model: deltaz_host::projector_calibration::Model,
-        /// Image noise (px) weighting the plane points and giving the rays' covariances.
-        #[arg(long, default_value_t = 0.5)]
+        /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
+        #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
     },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
@@ -366,14 +445,70 @@ enum CalibrateWhat {
         /// Free network: control only gives approximate values; minimal constraints.
         #[arg(long)]
         free_network: bool,
-        /// A priori σ of image coordinates (px), weighting control against images.
-        #[arg(long, default_value_t = 0.5)]
+        /// A priori σ of image coordinates (px, > 0), weighting control against images.
+        #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
     },
 }
 
-fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
+/// The observations file `--images` writes next to `--out` before calibrating: unless the
+/// calibration succeeds, it is put back as it was (removed, or its former content), so that a
+/// failed run leaves no file created or changed.
+struct ObservationsGuard {
+    path: PathBuf,
+    before: Option<Vec<u8>>,
+}
+
+impl ObservationsGuard {
+    fn new(out: &std::path::Path) -> Self {
+        let path = measure::identify_images::observations_path(out);
+        let before = std::fs::read(&path).ok();
+        Self { path, before }
+    }
+
+    /// The calibration succeeded: the file stays.
+    fn keep(mut self) {
+        self.before = std::fs::read(&self.path).ok();
+    }
+}
+
+impl Drop for ObservationsGuard {
+    fn drop(&mut self) {
+        let now = std::fs::read(&self.path).ok();
+        if now != self.before {
+            let _ = match &self.before {
+                Some(bytes) => io::atomic::write_atomic(&self.path, bytes).map_err(|_| ()),
+                None => std::fs::remove_file(&self.path).map_err(|_| ()),
+            };
+        }
+    }
+}
+
+/// Runs the command; any error prints as one `error: ...` chain (never a backtrace, whatever
+/// RUST_BACKTRACE says) and exits with 1, like a bad command line.
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::FAILURE
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Simulate {
             scenario,
             out,
@@ -461,7 +596,7 @@ fn main() -> anyhow::Result<()> {
                 io::atomic::write_json_atomic(&out, &poses)?;
             }
         }
-        Command::BenchMeasure { repeats } => print!("{}", measure::bench::run(repeats)),
+        Command::BenchMeasure { repeats } => print!("{}", measure::bench::run(repeats.into())),
         Command::Measure {
             images,
             out,
@@ -519,6 +654,7 @@ fn main() -> anyhow::Result<()> {
                     image_sigma_px,
                 },
         } => {
+            let leftover = ObservationsGuard::new(&out);
             let obs = match (obs, folder.with_control(&control)) {
                 (Some(obs), _) => obs,
                 (None, Some(folder)) => {
@@ -539,7 +675,8 @@ fn main() -> anyhow::Result<()> {
                 }
                 (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
             };
-            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?
+            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?;
+            leftover.keep();
         }
         Command::Calibrate {
             what:
@@ -566,6 +703,7 @@ fn main() -> anyhow::Result<()> {
                 options.free.inner[k] |= on;
             }
             let folder = control.as_deref().and_then(|c| folder.with_control(c));
+            let leftover = ObservationsGuard::new(&out);
             let obs = match (obs, folder) {
                 (Some(obs), _) => obs,
                 (None, Some(folder)) => {
@@ -591,6 +729,7 @@ fn main() -> anyhow::Result<()> {
                 "{}",
                 deltaz_host::camera_calibration::summary(&file, &options.free)
             );
+            leftover.keep();
         }
         Command::Device { link, what } => match what {
             DeviceWhat::Ports => device_cli::ports()?,
@@ -603,7 +742,7 @@ fn main() -> anyhow::Result<()> {
                 &link.args(),
                 &system,
                 method.into(),
-                identification.params(),
+                identification.params()?,
             )?,
             DeviceWhat::Stream {
                 system,
@@ -617,7 +756,9 @@ fn main() -> anyhow::Result<()> {
             } => {
                 let source = match (obs, simulate) {
                     (Some(path), _) => device_cli::StreamSource::Csv(path),
-                    (None, Some(frames)) => device_cli::StreamSource::Simulated { frames },
+                    (None, Some(frames)) => device_cli::StreamSource::Simulated {
+                        frames: frames as usize,
+                    },
                     (None, None) => anyhow::bail!("give --obs FILE or --simulate FRAMES"),
                 };
                 device_cli::stream(&device_cli::StreamArgs {
@@ -628,10 +769,35 @@ fn main() -> anyhow::Result<()> {
                     csv,
                     method: method.into(),
                     identify,
-                    identification: identification.params(),
+                    identification: identification.params()?,
                 })?
             }
         },
+        Command::Export {
+            what:
+                ExportWhat::Opencv {
+                    camera,
+                    system,
+                    out,
+                },
+        } => {
+            let (input, is_system) = match (camera, system) {
+                (Some(camera), _) => (camera, false),
+                (None, Some(system)) => (system, true),
+                (None, None) => anyhow::bail!("give --camera FILE or --system FILE"),
+            };
+            let cv = deltaz_host::export::export_opencv(&input, is_system, &out)?;
+            eprintln!(
+                "OpenCV camera: f {:.2} px, principal point ({:.2}, {:.2}) px, {} images, \
+                 distortion refit error at most {:.4} px -> {}",
+                cv.focal_px[0],
+                cv.principal_px[0],
+                cv.principal_px[1],
+                cv.extrinsics.len(),
+                cv.refit_max_px,
+                out.display()
+            );
+        }
         Command::Bench { images, targets } => {
             for scenario in [
                 simulate::Scenario::paper(),

@@ -7,6 +7,38 @@ use std::path::Path;
 
 /// Writes `bytes` to `path` atomically (temporary file in the same directory + rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_all_atomic(&[(path, bytes)])
+}
+
+/// Writes several files all or nothing: every temporary file is written first, and only when all
+/// of them are complete are they renamed over their targets. A failure (a missing directory, a
+/// full disk) leaves none of the targets created or changed.
+pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
+    let mut temporaries = Vec::with_capacity(files.len());
+    for (path, bytes) in files {
+        match write_temporary(path, bytes) {
+            Ok(tmp) => temporaries.push(tmp),
+            Err(e) => {
+                for tmp in &temporaries {
+                    let _ = std::fs::remove_file(tmp);
+                }
+                return Err(e);
+            }
+        }
+    }
+    for (index, ((path, _), tmp)) in files.iter().zip(&temporaries).enumerate() {
+        if let Err(e) = std::fs::rename(tmp, path) {
+            for tmp in &temporaries[index..] {
+                let _ = std::fs::remove_file(tmp);
+            }
+            return Err(FileError::whole(path, format!("cannot write: {e}")));
+        }
+    }
+    Ok(())
+}
+
+/// `bytes` in a complete, synced temporary file beside `path`; its name.
+fn write_temporary(path: &Path, bytes: &[u8]) -> Result<std::path::PathBuf> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -14,6 +46,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let name = path
         .file_name()
         .ok_or_else(|| FileError::whole(path, "not a file name"))?;
+    if path.is_dir() {
+        return Err(FileError::whole(path, "cannot write: it is a directory"));
+    }
     let tmp = dir.join(format!(
         ".{}.tmp{}",
         name.to_string_lossy(),
@@ -22,10 +57,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let result = (|| -> std::io::Result<()> {
         let mut file = std::fs::File::create(&tmp)?;
         file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
+        file.sync_all()
     })();
-    result.map_err(|e| {
+    result.map(|()| tmp.clone()).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
         FileError::whole(path, format!("cannot write: {e}"))
     })
@@ -60,5 +94,21 @@ mod tests {
         let e = write_atomic(&path, b"x").unwrap_err();
         assert!(e.to_string().contains("a.txt"), "{e}");
         assert!(!path.exists());
+    }
+
+    #[test]
+    fn several_files_all_or_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let kept = dir.path().join("kept.ply");
+        write_atomic(&kept, b"old").unwrap();
+        let missing = dir.path().join("nodir/c.csv");
+        let e = write_all_atomic(&[(&kept, b"new"), (&missing, b"x")]).unwrap_err();
+        assert!(e.to_string().contains("nodir/c.csv"), "{e}");
+        assert_eq!(std::fs::read(&kept).unwrap(), b"old");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        let other = dir.path().join("c.csv");
+        write_all_atomic(&[(&kept, b"new"), (&other, b"y")]).unwrap();
+        assert_eq!(std::fs::read(&kept).unwrap(), b"new");
+        assert_eq!(std::fs::read(&other).unwrap(), b"y");
     }
 }

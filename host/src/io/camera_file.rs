@@ -70,6 +70,12 @@ impl InnerParams {
     }
 }
 
+/// The largest image side accepted (px): larger is a typing error, and would allocate gigabytes.
+pub const MAX_IMAGE_SIDE: u32 = 65_536;
+
+/// The largest focal length accepted, in pixels (a 2 m lens on 2 µm pixels is 1e6 px).
+pub const MAX_FOCAL_PX: f64 = 1e7;
+
 pub use deltaz_calib::residual::INNER_NAMES;
 
 impl From<InnerParams> for InnerOrientation<f64> {
@@ -311,6 +317,25 @@ impl CameraFile {
                 "`pixel_size` and `image_size` must be positive",
             ));
         }
+        let [width, height] = self.image_size;
+        if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+            return Err(FileError::whole(
+                path,
+                format!(
+                    "`image_size` {width} x {height} px exceeds the limit of {MAX_IMAGE_SIDE} px a side"
+                ),
+            ));
+        }
+        let focal_px = self.inner.f / self.pixel_size;
+        if focal_px > MAX_FOCAL_PX {
+            return Err(FileError::whole(
+                path,
+                format!(
+                    "`inner.f` {:e} mm is {focal_px:.3e} px: not a focal length (at most {MAX_FOCAL_PX:.0e} px)",
+                    self.inner.f
+                ),
+            ));
+        }
         Ok(())
     }
 }
@@ -382,6 +407,11 @@ mod tests {
                 ok.replace(",\"pixel_size\":0.045", ""),
                 "missing field `pixel_size`",
             ),
+            (
+                ok.replace("[768,512]", "[4294967295,512]"),
+                "`image_size` 4294967295 x 512 px exceeds the limit",
+            ),
+            (ok.replace("\"f\":46", "\"f\":1e300"), "`inner.f` 1e300 mm"),
         ];
         for (text, expect) in bad {
             std::fs::write(&path, text).unwrap();

@@ -11,7 +11,12 @@ use std::path::Path;
 
 pub use deltaz_calib::input::ControlPoint;
 
-/// Reads a control file, checking columns, finite numbers, sigma ≥ 0 and unique labels.
+/// The largest control coordinate accepted (mm, 10 km): beyond it a value is a typing error and
+/// would ruin the adjustment's conditioning.
+pub const MAX_COORDINATE_MM: f64 = 1e7;
+
+/// Reads a control file, checking columns, finite numbers within ±[`MAX_COORDINATE_MM`],
+/// sigma ≥ 0 and unique labels.
 pub fn read_control(path: &Path) -> Result<Vec<ControlPoint>> {
     let (header, rows) = records(path)?;
     let [cp, cx, cy, cz] = header_columns(path, &header, ["point", "X", "Y", "Z"])?;
@@ -32,6 +37,17 @@ pub fn read_control(path: &Path) -> Result<Vec<ControlPoint>> {
             }
             _ => 0.0,
         };
+        if let Some((name, v)) = ["X", "Y", "Z"]
+            .into_iter()
+            .zip(xyz.iter())
+            .find(|(_, v)| v.abs() > MAX_COORDINATE_MM)
+        {
+            return Err(FileError::at(
+                path,
+                line,
+                format!("`{name}` is {v:e} mm, beyond ±{MAX_COORDINATE_MM:e} mm"),
+            ));
+        }
         if sigma < 0.0 {
             return Err(FileError::at(path, line, "`sigma` is negative"));
         }
@@ -113,6 +129,7 @@ mod tests {
                 ":3: duplicate control point",
             ),
             ("point,X,Y,Z,sigma\nC1,1,inf,3,0\n", ":2: `Y` is not finite"),
+            ("point,X,Y,Z\nC1,1e308,2,3\n", ":2: `X` is 1e308 mm, beyond"),
             (
                 "point,X,Y,Z,sigma\nC1,1,2,3,-1\n",
                 ":2: `sigma` is negative",

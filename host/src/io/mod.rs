@@ -79,17 +79,6 @@ pub(crate) fn optional_column(header: &csv::StringRecord, name: &str) -> Option<
     header.iter().position(|h| h.trim() == name)
 }
 
-/// A CSV reader over a file (headers on, whitespace trimmed, rows of varying length allowed so
-/// that a short row gets our own error).
-pub(crate) fn csv_reader(path: &Path) -> Result<csv::Reader<std::fs::File>> {
-    let file = std::fs::File::open(path).map_err(|e| FileError::whole(path, e.to_string()))?;
-    Ok(csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .flexible(true)
-        .comment(Some(b'#'))
-        .from_reader(file))
-}
-
 /// The 1-based line of a CSV record.
 pub(crate) fn record_line(record: &csv::StringRecord) -> usize {
     record.position().map_or(0, |p| p.line() as usize)
@@ -137,19 +126,66 @@ pub(crate) fn number_field(
     Ok(value)
 }
 
-/// Reads every record of a CSV file, turning csv errors into [`FileError`]s.
+/// The largest CSV file read (bytes): larger is not an observations or control file, and is
+/// refused before it is read into memory.
+pub const MAX_CSV_BYTES: u64 = 1 << 30;
+
+/// Reads every record of a CSV file (headers on, whitespace trimmed, `#` comments), turning csv
+/// errors into [`FileError`]s. Each record's line is counted from the file's bytes, so that
+/// CRLF files are numbered like LF ones; a row with more fields than the header (a decimal
+/// comma, an unquoted label) is refused on its own line.
 pub(crate) fn records(path: &Path) -> Result<(csv::StringRecord, Vec<csv::StringRecord>)> {
-    let mut reader = csv_reader(path)?;
+    let size = std::fs::metadata(path)
+        .map_err(|e| FileError::whole(path, e.to_string()))?
+        .len();
+    if size > MAX_CSV_BYTES {
+        return Err(FileError::whole(
+            path,
+            format!("{size} bytes: larger than the limit of {MAX_CSV_BYTES} bytes"),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(|e| FileError::whole(path, e.to_string()))?;
+    // The csv crate's own line count is one short after CRLF; its byte offset may point at the
+    // terminator before a record, so the record starts at the first byte after line ends.
+    let line_at = |byte: u64| {
+        let mut end = usize::try_from(byte).unwrap_or(usize::MAX).min(bytes.len());
+        while end < bytes.len() && matches!(bytes[end], b'\r' | b'\n') {
+            end += 1;
+        }
+        1 + bytes[..end].iter().filter(|&&b| b == b'\n').count()
+    };
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .flexible(true)
+        .comment(Some(b'#'))
+        .from_reader(bytes.as_slice());
     let header = reader
         .headers()
         .map_err(|e| FileError::at(path, 1, e.to_string()))?
         .clone();
     let mut rows = Vec::new();
     for record in reader.records() {
-        let record = record.map_err(|e| {
-            let line = e.position().map_or(0, |p| p.line() as usize);
+        let mut record = record.map_err(|e| {
+            let line = e.position().map_or(0, |p| line_at(p.byte()));
             FileError::at(path, line, e.to_string())
         })?;
+        if let Some(position) = record.position() {
+            let mut position = position.clone();
+            position.set_line(line_at(position.byte()) as u64);
+            record.set_position(Some(position));
+        }
+        if record.iter().skip(header.len()).any(|f| !f.is_empty()) {
+            return Err(FileError::at(
+                path,
+                record_line(&record),
+                format!(
+                    "{} fields but the header has {}: a decimal comma (write 1.5, not 1,5) \
+                     or a label with a comma (quote it)?",
+                    record.len(),
+                    header.len()
+                ),
+            ));
+        }
         rows.push(record);
     }
     Ok((header, rows))

@@ -218,6 +218,14 @@ mod tests {
                 "image,point,col,row\ns1,,3,4\n",
                 ":2: missing value for `point`",
             ),
+            (
+                "image,point,col,row\r\ns1,T1,3,4\r\ns1,T2,3,x\r\n",
+                ":3: `row` is not a number",
+            ),
+            (
+                "image,point,col,row\ns1,T1,3,4\ns1,T2,3,4,5\n",
+                ":3: 5 fields but the header has 4: a decimal comma",
+            ),
         ];
         for (text, expect) in cases {
             let (_d, path) = file(text);

@@ -215,6 +215,35 @@ impl Scenario {
             (0.0..=1.0).contains(&self.noise.outlier_rate),
             "noise.outlier_rate must lie in 0..1"
         );
+        self.check_sizes()
+    }
+
+    /// Sizes and counts within limits, checked before anything is allocated or written: images
+    /// of at most 50 megapixels (65,536 px a side), 10,000 stations, 1,000,000 field targets,
+    /// 1,000 plate images.
+    fn check_sizes(&self) -> anyhow::Result<()> {
+        let [width, height] = self.camera.image_size;
+        let side = crate::io::camera_file::MAX_IMAGE_SIDE;
+        anyhow::ensure!(
+            width.max(height) <= side && u64::from(width) * u64::from(height) <= 50_000_000,
+            "camera.image_size {width} x {height} px exceeds the limit of 50 megapixels \
+             ({side} px a side)"
+        );
+        anyhow::ensure!(
+            self.stations.count <= 10_000,
+            "stations.count {} exceeds the limit of 10,000",
+            self.stations.count
+        );
+        let [cols, rows] = self.field.grid;
+        anyhow::ensure!(
+            u64::from(cols) * u64::from(rows) <= 1_000_000,
+            "field.grid {cols} x {rows} exceeds the limit of 1,000,000 targets"
+        );
+        anyhow::ensure!(
+            self.plate.images.len() <= 1_000,
+            "plate.images: {} exceeds the limit of 1,000 images",
+            self.plate.images.len()
+        );
         Ok(())
     }
 }

@@ -51,7 +51,7 @@ fn info_and_link_errors() {
     );
     let absent = err(&["device", "info", "--port", "/dev/deltaz-none"]);
     assert!(absent.contains("no device at /dev/deltaz-none"), "{absent}");
-    let both = err(&["device", "info", "--port", "/dev/x", "--qemu", "/x.elf"]);
+    let both = err(&["device", "info", "--port", "/dev/x", "--qemu=/x.elf"]);
     assert!(both.contains("exclude each other"), "{both}");
 }
 

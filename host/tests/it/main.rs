@@ -1,10 +1,12 @@
 //! The host crate's integration tests, one binary: each module is one former test file.
 mod accuracy;
+mod bad_input;
 mod cli_calibration;
 mod compare_cli;
 mod demo;
 mod desk;
 mod device_cli;
+mod export_opencv;
 mod identify;
 mod images_cli;
 mod images_to_points;

@@ -1,0 +1,299 @@
+//! Bad input across every command, one table: each case must exit with code 1, print one clean
+//! `error: ...` chain naming the file (with its line or field) or the option and the problem,
+//! never panic or print a backtrace (RUST_BACKTRACE=1 is set), and leave its directory exactly
+//! as it was: no output file created or changed.
+
+use deltaz_host::io::camera_file::{write_camera, CameraFile};
+use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+/// The good files the cases start from: the simulated paper rig (sim/), the true camera
+/// (camera.json), a calibrated system (system.json), the 1st plate image's dots (dots.csv),
+/// and the images rendered from the same simulation (in [`images_parent`]).
+fn fixture() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_fixture");
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut scenario = Scenario::paper();
+        scenario.noise.image_sigma_px = 0.1;
+        let sim = simulate(&scenario, 5);
+        write_simulation(&dir.join("sim"), &sim).unwrap();
+        let spec = deltaz_host::simulate::images::ImageSpec::default();
+        // The images outside the fixture (not copied for every case).
+        deltaz_host::simulate::images::write_images(&scenario, 5, &spec, &images_parent()).unwrap();
+        let (grid, inner) = true_camera(&scenario);
+        write_camera(&dir.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+            .args(["calibrate", "projector", "--camera", "camera.json"])
+            .args([
+                "--control",
+                "sim/plate_control.csv",
+                "--obs",
+                "sim/plate_obs.csv",
+            ])
+            .args(["--out", "system.json", "--image-sigma-px", "0.1"])
+            .current_dir(&dir)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let plate = std::fs::read_to_string(dir.join("sim/plate_obs.csv")).unwrap();
+        let dots: String = plate
+            .lines()
+            .take(1)
+            .chain(
+                plate
+                    .lines()
+                    .filter(|l| l.starts_with("p1,") && l.ends_with(",dot")),
+            )
+            .map(|l| format!("{l}\n"))
+            .collect();
+        std::fs::write(dir.join("dots.csv"), dots).unwrap();
+        dir
+    })
+}
+
+/// The fixture's rendered images are in `images/` here.
+fn images_parent() -> PathBuf {
+    Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_images")
+}
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                files.insert(path.clone(), std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    files
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let path = entry.unwrap().path();
+        let target = to.join(path.file_name().unwrap());
+        if path.is_dir() {
+            copy_dir(&path, &target);
+        } else {
+            std::fs::copy(&path, &target).unwrap();
+        }
+    }
+}
+
+/// One bad input: the files written over the fixture, the command line, what the error must say.
+struct Case {
+    files: Vec<(&'static str, String)>,
+    args: Vec<String>,
+    expect: Vec<&'static str>,
+}
+
+fn case(args: &str, expect: &[&'static str]) -> Case {
+    Case {
+        files: Vec::new(),
+        args: args.split_whitespace().map(String::from).collect(),
+        expect: expect.to_vec(),
+    }
+}
+
+impl Case {
+    fn with(mut self, name: &'static str, text: impl Into<String>) -> Self {
+        self.files.push((name, text.into()));
+        self
+    }
+}
+
+/// A fixture file with one edit.
+fn edited(name: &str, from: &str, to: &str) -> String {
+    let text = std::fs::read_to_string(fixture().join(name)).unwrap();
+    assert!(text.contains(from), "{name} lacks {from:?}");
+    text.replacen(from, to, 1)
+}
+
+const SCENARIO: &str = include_str!("../../scenarios/desk_rig.toml");
+
+fn cases() -> Vec<Case> {
+    let calibrate_camera = "calibrate camera --init camera.json --obs sim/camera_obs.csv \
+                            --control sim/camera_control.csv --out cam.json";
+    let projector = "calibrate projector --camera camera.json --control sim/plate_control.csv \
+                     --obs sim/plate_obs.csv --out sys.json";
+    let resect = "resect --camera camera.json --obs sim/plate_obs.csv \
+                  --control sim/plate_control.csv --out poses.json";
+    let reconstruct = "reconstruct --system system.json --obs dots.csv --out cloud.ply";
+    let compare = "compare --reconstructed a.csv --reference sim/plate_control.csv";
+    let points = "point,X,Y,Z\nC01,0,-40,0\nC02,190,-40,0\nC03,375,-40,0\nC07,190,240,200\n";
+    vec![
+        // simulate
+        case("simulate --scenario nope.toml --out o", &["nope.toml", "No such file"]),
+        case("simulate --scenario s.toml --out o", &["s.toml", "camera.image_size 200000 x 150000", "limit"])
+            .with("s.toml", SCENARIO.replace("[2048, 1536]", "[200000, 150000]")),
+        case("simulate --scenario s.toml --out o", &["s.toml", "line 7", "unknown field `pixel_sise`"])
+            .with("s.toml", SCENARIO.replace("pixel_size", "pixel_sise")),
+        case("simulate --scenario s.toml --out o", &["s.toml", "stations.count 4000000000", "limit"])
+            .with("s.toml", SCENARIO.replace("count = 9", "count = 4000000000")),
+        case("simulate --scenario s.toml --out o", &["s.toml", "σ must not be negative"])
+            .with("s.toml", SCENARIO.replace("image_sigma_px = 0.1", "image_sigma_px = -0.1")),
+        // compare
+        case(compare, &["a.csv:1: missing column `Z`"]).with("a.csv", "point,X,Y\nC01,1,2\n"),
+        case(compare, &["a.csv:3: 5 fields but the header has 4", "decimal comma"])
+            .with("a.csv", "point,X,Y,Z\nC01,0,-40,0\nC02,190,-40,0,5\n"),
+        case(compare, &["a.csv:4: `Z` is not a number: \"x\""])
+            .with("a.csv", points.replace("375,-40,0", "375,-40,x").replace('\n', "\r\n")),
+        case(compare, &["a.csv:2: `X` is not finite"]).with("a.csv", points.replace("0,-40,0", "NaN,-40,0")),
+        case(compare, &["point \"Q9\" is not in the reference"]).with("a.csv", format!("{points}Q9,1,2,3\n")),
+        case(compare, &["a.csv", "collinear"])
+            .with("a.csv", "point,X,Y,Z\nC01,0,0,0\nC02,1,1,1\nC03,2,2,2\nC04,3,3,3.0001\n"),
+        case(compare, &["a.csv: no control points"]).with("a.csv", "point,X,Y,Z\n"),
+        case(compare, &["a.csv:3: duplicate control point \"C01\""])
+            .with("a.csv", "point,X,Y,Z\nC01,0,0,0\nC01,1,1,1\n"),
+        // reconstruct
+        case("reconstruct --system none.json --obs dots.csv --out c.ply", &["none.json", "No such file"]),
+        case(reconstruct, &["system.json", "not a valid system.json", "line 1"]).with("system.json", "{\"format\": "),
+        case(reconstruct, &["system.json", "fingerprint", "edited by hand"])
+            .with("system.json", edited("system.json", "\"miss_rms\": ", "\"miss_rms\": 1")),
+        case(reconstruct, &["dots.csv", "ray 2121"]).with("dots.csv", "image,point,col,row\nf1,2121,300,200\n"),
+        case(reconstruct, &["dots.csv:2: point \"A\" is not a ray id"]).with("dots.csv", "image,point,col,row\nf1,A,300,200\n"),
+        case(&format!("{reconstruct} --sigma-px NaN"), &["--sigma-px", "NaN is not a positive finite number"]),
+        case(&format!("{reconstruct} --sigma-px 0"), &["--sigma-px", "0 is not a positive finite number"]),
+        case(&format!("{reconstruct} --csv nodir/c.csv"), &["nodir/c.csv", "cannot write"]),
+        // resect
+        case(resect, &["camera.json", "`image_size` 4294967295 x 512 px exceeds the limit"])
+            .with("camera.json", edited("camera.json", "768,", "4294967295,")),
+        case(resect, &["camera.json", "`inner.f` 1e300 mm", "not a focal length"])
+            .with("camera.json", edited("camera.json", "\"f\": 46.981", "\"f\": 1e300")),
+        case(resect, &["plate_control.csv:2: `X` is 1e308 mm, beyond"])
+            .with("sim/plate_control.csv", "point,X,Y,Z\nC01,1e308,0,0\nC02,1,0,0\n"),
+        case(resect, &["plate_obs.csv:1: missing column `row`"])
+            .with("sim/plate_obs.csv", "image,point,col,kind\np1,C01,1,control\n"),
+        case(resect, &["plate_obs.csv:4: `col` is not a number: \"x"])
+            .with("sim/plate_obs.csv", edited("sim/plate_obs.csv", "p1,C03,", "p1,C03,x").replace('\n', "\r\n")),
+        case(resect, &["plate_obs.csv:3: duplicate observation of point \"C01\""])
+            .with("sim/plate_obs.csv", "image,point,col,row\np1,C01,1,2\np1,C01,3,4\n"),
+        case(resect, &["plate_obs.csv:2: `kind` must be `control` or `dot`"])
+            .with("sim/plate_obs.csv", "image,point,col,row,kind\np1,C01,1,2,target\n"),
+        case(resect, &["camera.json", "missing field `pixel_size`"])
+            .with("camera.json", edited("camera.json", "\"pixel_size\"", "\"pixel_sise\"")),
+        // calibrate camera
+        case(&format!("{calibrate_camera} --image-sigma-px 0"), &["--image-sigma-px", "0 is not a positive"]),
+        case(&format!("{calibrate_camera} --image-sigma-px -1"), &["--image-sigma-px", "-1 is not a positive"]),
+        case(&format!("{calibrate_camera} --image-sigma-px NaN"), &["--image-sigma-px", "NaN is not a positive"]),
+        case(calibrate_camera, &["camera_obs.csv: no observations"]).with("sim/camera_obs.csv", "image,point,col,row\n"),
+        case(calibrate_camera, &["camera_control.csv:2: `sigma` is negative"])
+            .with("sim/camera_control.csv", edited("sim/camera_control.csv", ",0.1\n", ",-0.1\n")),
+        case("calibrate camera --init camera.json --images nodir --control sim/camera_control.csv --out cam.json", &["nodir"]),
+        // calibrate projector
+        case(&format!("{projector} --image-sigma-px 0"), &["--image-sigma-px", "0 is not a positive"]),
+        case(&format!("{projector} --image-sigma-px NaN"), &["--image-sigma-px", "NaN is not a positive"]),
+        case(projector, &["plate_control.csv: the plate's control points are coplanar"]).with(
+            "sim/plate_control.csv",
+            "point,X,Y,Z\nC01,0,0,0\nC02,100,0,0\nC03,0,100,0\nC04,100,100,0\n",
+        ),
+        case("calibrate projector --camera camera.json --control sim/plate_control.csv --images sim --marker 10 --out sys.json",
+            &["--marker", "\"10\" is not two comma-separated numbers"]),
+        case("calibrate projector --camera camera.json --control sim/plate_control.csv --obs none.csv --out sys.json",
+            &["none.csv", "No such file"]),
+        // The observations measured from images are written before the calibration fails
+        // (here on its output, a directory): they must not stay behind.
+        case(
+            &format!(
+                "calibrate projector --camera camera.json --images {} --only p \
+                 --control sim/plate_control.csv --out sysdir",
+                images_parent().join("images").display()
+            ),
+            &["sysdir: cannot write: it is a directory"],
+        )
+        .with("sysdir/keep", ""),
+        // measure
+        case("measure none.png --out m.csv", &["none.png", "No such file"]),
+        case("measure fake.png --out m.csv", &["fake.png", "not a PNG, TIFF or JPEG image"]).with("fake.png", "text"),
+        case("measure fake.png --out m.csv --tolerance -1", &["--tolerance", "-1 is not a positive"]),
+        // bench, bench-measure
+        case("bench-measure --repeats 0", &["--repeats", "0 is not in 1..=100"]),
+        case("bench --images 4000000000", &["--images", "4000000000"]),
+        case("bench --targets 1", &["--targets", "1 is not in 4..=100000"]),
+        // device
+        case("device upload none.json", &["none.json", "No such file"]),
+        case("device upload system.json --near 2000 --far 1500", &["--near 2000 mm must be less than --far 1500 mm"]),
+        case("device upload system.json --near 500 --far 1500 --identify-cell 0", &["--identify-cell", "0 is not a positive"]),
+        case("device stream --system system.json --simulate 4000000000 --out s.ply", &["--simulate", "4000000000"]),
+        case("device stream --system system.json --obs none.csv --out s.ply", &["none.csv", "No such file"]),
+        case("device --qemu=none.elf info", &["none.elf"]),
+        // export
+        case("export opencv --camera none.json --out c.yml", &["none.json", "No such file"]),
+        case("export opencv --system camera.json --out c.yml", &["camera.json", "not a valid system.json"]),
+        case("export opencv --camera camera.json --out nodir/c.yml", &["nodir/c.yml", "cannot write"]),
+        // demo
+        case("demo --out sim/camera_obs.csv", &["sim/camera_obs.csv"]),
+    ]
+}
+
+#[test]
+fn every_command_refuses_bad_input_cleanly() {
+    let cases = cases();
+    assert!(cases.len() >= 40, "{} cases", cases.len());
+    let root = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    for (index, case) in cases.iter().enumerate() {
+        let dir = root.path().join(format!("case{index}"));
+        copy_dir(fixture(), &dir);
+        for (name, text) in &case.files {
+            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
+            std::fs::write(dir.join(name), text).unwrap();
+        }
+        let before = snapshot(&dir);
+        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+            .args(&case.args)
+            .current_dir(&dir)
+            .env("RUST_BACKTRACE", "1")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let mut problems = Vec::new();
+        if out.status.code() != Some(1) {
+            problems.push(format!("exit {:?}", out.status.code()));
+        }
+        let errors = stderr.lines().filter(|l| l.starts_with("error: ")).count();
+        if errors != 1 || stderr.contains("panicked") || stderr.contains("backtrace") {
+            problems.push("not one clean error".to_owned());
+        }
+        problems.extend(
+            case.expect
+                .iter()
+                .filter(|e| !stderr.contains(*e))
+                .map(|e| format!("lacks {e:?}")),
+        );
+        if snapshot(&dir) != before {
+            problems.push("files created or changed".to_owned());
+        }
+        if !problems.is_empty() {
+            failures.push(format!(
+                "{}: {}\n    {}",
+                case.args.join(" "),
+                problems.join(", "),
+                stderr.trim()
+            ));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n")
+    );
+}
