@@ -1,29 +1,31 @@
 //! The device: requests in, responses out. It holds the active calibration as an f32 rig centred
-//! on the camera, the dot identifier built from it, an upload in progress, and the calibration
+//! on the camera (one ray table), the dot identifier built from it, an upload in progress (its
+//! bytes go straight into the store's spare flash slot as they arrive), and the calibration
 //! store.
 
-use crate::store::{Store, StoreError};
+use crate::store::{Pending, Store, StoreError};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::protocol::calibration::{
-    decode_calibration, CalibrationHeader, IdentifyParams, WireRay,
+    decode_calibration_from, CalibrationHeader, IdentifyParams, WireRay,
 };
-use deltaz_shared::protocol::frame::CRC;
+use deltaz_shared::protocol::stream::{tag, Batch, FrameWriter, RequestView};
 use deltaz_shared::protocol::{
     centroid_fraction_bits, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, Dot, ErrorCode,
-    IdentifiedPoint, PointResult, PointStatus, Request, RequestBody, Response, ResponseBody,
-    MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
+    PointResult, PointStatus, WireError, MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
 };
 use deltaz_shared::rig::{Method, Rig};
 use embedded_storage::nor_flash::NorFlash;
 use nalgebra::{Matrix3, Vector3};
+use serde::Serialize;
 
 /// The firmware version reported by `Info` (the crate version).
 pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
 /// The most projector rays a calibration may hold.
 pub const MAX_RAYS: usize = 512;
 /// The longest calibration blob (bytes): [`MAX_RAYS`] rays of at most 28 bytes plus the header.
+/// A board's store slots hold at least this much (the blob is never in RAM).
 pub const MAX_CALIBRATION: usize = 16 * 1024;
 
 /// A calibration's projector rays, f32, where the device keeps them.
@@ -61,9 +63,8 @@ impl Probe for NoProbe {
     }
 }
 
-/// The active calibration: its rays are the device's ray table number `table`.
+/// The active calibration: its rays are the device's ray table.
 struct Active {
-    table: usize,
     grid: PixelGrid<f32>,
     inner: InnerOrientation<f32>,
     r_cam_world: Matrix3<f32>,
@@ -74,22 +75,24 @@ struct Active {
 }
 
 impl Active {
-    /// The rig over this calibration's rays (`tables`, the device's two ray tables). The rays
-    /// were checked at activation, so this cannot fail; should it, the calibration is invalid.
-    fn rig<'a>(&self, tables: &'a [RayTable; 2]) -> Result<DeviceRig<'a>, ErrorCode> {
-        let projector = Projector::new(self.projector_centre, &tables[self.table][..])
-            .map_err(|_| ErrorCode::InvalidCalibration)?;
-        Ok(Rig::from_centred(
+    /// The rig over this calibration's rays, checked when it was activated.
+    fn rig<'a>(&self, rays: &'a RayTable) -> DeviceRig<'a> {
+        let projector = Projector::from_checked(self.projector_centre, &rays[..]);
+        Rig::from_centred(
             self.grid,
             self.inner,
             self.r_cam_world,
             Vector3::zeros(),
             projector,
-        ))
+        )
     }
 
-    /// The result for one centroid of ray `id` at pixel (col, row).
+    /// The result for one centroid of ray `id` at pixel (col, row); a centroid off the sensor
+    /// gets [`PointStatus::OffSensor`].
     fn point(&self, rig: &DeviceRig, id: u16, col: f32, row: f32) -> PointResult {
+        if !rig.grid().contains(col, row) {
+            return PointResult::Failed(PointStatus::OffSensor);
+        }
         match rig.reconstruct(id, col, row, self.method) {
             Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
             Err(e) => PointResult::from_error(e),
@@ -100,7 +103,7 @@ impl Active {
     /// identification).
     fn build_identifier(
         &self,
-        tables: &[RayTable; 2],
+        rays: &RayTable,
         identifier: &mut DeviceIdentifier,
     ) -> Result<(), ErrorCode> {
         let Some(p) = self.identification else {
@@ -112,7 +115,7 @@ impl Active {
             far: p.far,
         };
         identifier
-            .rebuild(&self.rig(tables)?, depth, p.tolerance, p.cell)
+            .rebuild(&self.rig(rays), depth, p.tolerance, p.cell)
             .map_err(|e| match e {
                 IdentifyError::InvalidParameters | IdentifyError::Geometry(..) => {
                     ErrorCode::InvalidCalibration
@@ -122,11 +125,10 @@ impl Active {
     }
 }
 
-/// An upload in progress.
+/// An upload in progress: its bytes so far are in the store's spare slot.
 struct Upload {
-    len: usize,
+    pending: Pending,
     crc: u32,
-    received: usize,
 }
 
 /// The device logic, generic over the calibration flash and the board's instruments.
@@ -134,30 +136,28 @@ pub struct Device<F, P> {
     store: Store<F>,
     probe: P,
     active: Option<Active>,
-    /// Two ray tables: the active calibration's and the one an upload is checked in, each
-    /// filled in place (the table is large; moving it costs stack).
-    tables: [RayTable; 2],
+    /// The active calibration's rays, filled in place (the table is large; moving it costs
+    /// stack).
+    rays: RayTable,
     identifier: DeviceIdentifier,
     upload: Option<Upload>,
-    staging: [u8; MAX_CALIBRATION],
     stats: DeviceStats,
     reset: bool,
 }
 
 impl<F: NorFlash, P: Probe> Device<F, P> {
     /// A device holding no calibration yet: [`Device::load`] it where it will live (see
-    /// [`crate::server::Server::boot_in`]), since the device is large (the staging buffer, the ray
-    /// tables, the identifier) and every move of it costs stack.
+    /// [`crate::server::Server::boot_in`]), since the device is large (the ray table, the
+    /// identifier) and every move of it costs stack.
     #[inline(always)]
     pub(crate) fn new(store: Store<F>, probe: P) -> Self {
         Self {
             store,
             probe,
             active: None,
-            tables: [RayTable::new(), RayTable::new()],
+            rays: RayTable::new(),
             identifier: DeviceIdentifier::empty(),
             upload: None,
-            staging: [0; MAX_CALIBRATION],
             stats: DeviceStats {
                 requests: 0,
                 bad_frames: 0,
@@ -173,14 +173,14 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     /// Boot: load the newest valid calibration from the store, if any, and build its
     /// identifier in place.
     pub(crate) fn load(&mut self) {
-        self.active = self.load_stored();
-        let built = match &self.active {
-            Some(active) => active.build_identifier(&self.tables, &mut self.identifier),
-            None => Ok(()),
+        self.active = None;
+        let Some(stored) = self.store.newest() else {
+            return;
         };
         // A stored calibration was checked at its commit, identifier included.
-        if built.is_err() {
-            self.active = None;
+        if let Ok(mut active) = self.activate(stored.slot, stored.len) {
+            active.summary.generation = stored.generation;
+            self.active = Some(active);
         }
     }
 
@@ -195,33 +195,48 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     }
 
     /// Count a frame that could not be read.
-    pub fn count_bad_frame(&mut self) {
+    fn count_bad_frame(&mut self) {
         self.stats.bad_frames = self.stats.bad_frames.wrapping_add(1);
     }
 
-    /// Answer one request.
-    pub fn handle(&mut self, request: Request) -> Response {
+    /// Answer request `seq` (read in place, see [`RequestView`]): its response frame is written
+    /// into `tx` (at least [`MAX_FRAME`] bytes); returns its length.
+    pub fn handle(&mut self, seq: u32, request: RequestView<'_>, tx: &mut [u8]) -> usize {
+        if seq == 0 {
+            // Seq 0 is the device's own for frames it could not read: a request must not use it.
+            self.count_bad_frame();
+            return error_frame(tx, 0, ErrorCode::Frame(WireError::Malformed));
+        }
         self.stats.requests = self.stats.requests.wrapping_add(1);
-        let body = match request.body {
-            RequestBody::Info => Ok(ResponseBody::Info(self.info())),
-            RequestBody::UploadBegin { len, crc } => self.begin(len as usize, crc),
-            RequestBody::UploadChunk { offset, data } => self.chunk(offset as usize, &data),
-            RequestBody::UploadCommit => self.commit(),
-            RequestBody::Compute { centroids } => self.compute(&centroids),
-            RequestBody::Identify { dots } => self.identify(&dots),
-            RequestBody::Stats => {
+        let written = match request {
+            RequestView::Info => reply(tx, seq, tag::INFO, &self.info()),
+            RequestView::UploadBegin { len, crc } => self
+                .begin(len as usize, crc)
+                .and_then(|len| reply(tx, seq, tag::UPLOAD_READY, &len)),
+            RequestView::UploadChunk { offset, data } => self
+                .chunk(offset as usize, data)
+                .and_then(|next| reply(tx, seq, tag::CHUNK_ACCEPTED, &next)),
+            RequestView::UploadCommit => self
+                .commit()
+                .and_then(|done| reply(tx, seq, tag::COMMITTED, &done)),
+            RequestView::Compute(centroids) => self.compute(seq, &centroids, tx),
+            RequestView::Identify(dots) => self.identify(seq, &dots, tx),
+            RequestView::Stats => {
                 self.stats.stack_peak = self.probe.stack_peak();
-                Ok(ResponseBody::Stats(self.stats))
+                reply(tx, seq, tag::STATS, &self.stats)
             }
-            RequestBody::Reset => {
+            RequestView::Reset => {
                 self.reset = true;
-                Ok(ResponseBody::Resetting)
+                reply(tx, seq, tag::RESETTING, &())
             }
         };
-        Response {
-            seq: request.seq,
-            body: body.unwrap_or_else(ResponseBody::Error),
-        }
+        written.unwrap_or_else(|code| error_frame(tx, seq, code))
+    }
+
+    /// The answer to a frame that could not be read (`seq` 0 unless its CRC held): counted.
+    pub fn refuse(&mut self, seq: u32, error: WireError, tx: &mut [u8]) -> usize {
+        self.count_bad_frame();
+        error_frame(tx, seq, ErrorCode::Frame(error))
     }
 
     fn info(&self) -> DeviceInfo {
@@ -231,147 +246,146 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             ray_capacity: MAX_RAYS as u16,
             max_batch: MAX_BATCH as u16,
             max_frame: MAX_FRAME as u32,
-            max_calibration: self.store.capacity().min(MAX_CALIBRATION) as u32,
+            max_calibration: self.max_calibration() as u32,
             calibration: self.active.as_ref().map(|a| a.summary),
         }
     }
 
-    fn begin(&mut self, len: usize, crc: u32) -> Result<ResponseBody, ErrorCode> {
+    /// The longest blob accepted: what a slot holds, at most [`MAX_CALIBRATION`].
+    fn max_calibration(&self) -> usize {
+        self.store.capacity().min(MAX_CALIBRATION)
+    }
+
+    /// Start an upload: the store erases its spare slot (the active calibration stays).
+    fn begin(&mut self, len: usize, crc: u32) -> Result<u32, ErrorCode> {
         self.upload = None;
-        if len > self.store.capacity().min(MAX_CALIBRATION) {
+        if len > self.max_calibration() {
             return Err(ErrorCode::TooLarge);
         }
-        self.upload = Some(Upload {
-            len,
-            crc,
-            received: 0,
-        });
-        Ok(ResponseBody::UploadReady { len: len as u32 })
+        let pending = self.store.begin(len).map_err(storage)?;
+        self.upload = Some(Upload { pending, crc });
+        Ok(len as u32)
     }
 
-    fn chunk(&mut self, offset: usize, data: &[u8]) -> Result<ResponseBody, ErrorCode> {
+    /// The next bytes of the upload, written to the flash as they come. The last chunk again
+    /// (its answer was lost) is answered again without writing.
+    fn chunk(&mut self, offset: usize, data: &[u8]) -> Result<u32, ErrorCode> {
         let upload = self.upload.as_mut().ok_or(ErrorCode::NoUpload)?;
-        // `received` ≤ `len` ≤ MAX_CALIBRATION, so `end` cannot overflow once offset matches.
-        if offset != upload.received {
-            return Err(ErrorCode::ChunkOutOfOrder);
+        let received = upload.pending.received();
+        let end = offset.saturating_add(data.len());
+        let again = !data.is_empty()
+            && end == received
+            && self.store.matches(&upload.pending, offset, data);
+        if !again {
+            if offset != received || end > upload.pending.len() {
+                return Err(ErrorCode::ChunkOutOfOrder);
+            }
+            self.store
+                .append(&mut upload.pending, data)
+                .map_err(storage)?;
         }
-        let end = offset + data.len();
-        if end > upload.len {
-            return Err(ErrorCode::ChunkOutOfOrder);
-        }
-        self.staging
-            .get_mut(offset..end)
-            .ok_or(ErrorCode::ChunkOutOfOrder)?
-            .copy_from_slice(data);
-        upload.received = end;
-        Ok(ResponseBody::ChunkAccepted {
-            next_offset: end as u32,
-        })
+        Ok(end as u32)
     }
 
-    fn commit(&mut self) -> Result<ResponseBody, ErrorCode> {
-        let upload = self.upload.take().ok_or(ErrorCode::NoUpload)?;
-        if upload.received < upload.len {
+    /// Check the uploaded blob in the flash, switch to it (ray table and identifier rebuilt in
+    /// place), then make it the stored newest: its fingerprint and generation. On any failure
+    /// the stored newest, the previous calibration, is loaded again.
+    fn commit(&mut self) -> Result<(u64, u32), ErrorCode> {
+        let mut upload = self.upload.take().ok_or(ErrorCode::NoUpload)?;
+        let pending = &mut upload.pending;
+        if pending.received() < pending.len() {
             self.upload = Some(upload);
             return Err(ErrorCode::UploadIncomplete);
         }
-        let blob = &self.staging[..upload.len];
-        if CRC.checksum(blob) != upload.crc {
+        if self.store.pending_crc(pending).map_err(storage)? != upload.crc {
             return Err(ErrorCode::UploadCrc);
         }
-        // Validate completely before touching the flash, the identifier included (built in
-        // place; on failure rebuilt for the calibration that stays active).
-        let spare = self.active.as_ref().map_or(0, |a| 1 - a.table);
-        let mut active = activate(blob, 0, spare, &mut self.tables[spare])
-            .ok_or(ErrorCode::InvalidCalibration)?;
-        let stored = active
-            .build_identifier(&self.tables, &mut self.identifier)
-            .and_then(|()| {
-                self.store.save(blob).map_err(|e| match e {
-                    StoreError::TooLarge => ErrorCode::TooLarge,
-                    _ => ErrorCode::Storage,
-                })
+        self.active = None;
+        let committed = self
+            .activate(pending.slot, pending.len())
+            .and_then(|active| {
+                let stored = self.store.seal(pending).map_err(storage)?;
+                Ok((active, stored))
             });
-        let stored = match stored {
-            Ok(stored) => stored,
-            Err(e) => {
-                if let Some(old) = &self.active {
-                    // It was built once already with these parameters.
-                    let _ = old.build_identifier(&self.tables, &mut self.identifier);
-                }
-                return Err(e);
+        match committed {
+            Ok((mut active, stored)) => {
+                active.summary.generation = stored.generation;
+                let summary = active.summary;
+                self.active = Some(active);
+                Ok((summary.fingerprint, summary.generation))
             }
-        };
-        active.summary.generation = stored.generation;
-        let summary = active.summary;
-        self.active = Some(active);
-        Ok(ResponseBody::Committed {
-            fingerprint: summary.fingerprint,
-            generation: summary.generation,
-        })
+            Err(e) => {
+                self.load();
+                Err(e)
+            }
+        }
     }
 
-    fn compute(&mut self, centroids: &[Centroid]) -> Result<ResponseBody, ErrorCode> {
+    /// The points of a batch of centroids, written straight into the response in `tx`.
+    fn compute(
+        &mut self,
+        seq: u32,
+        centroids: &Batch<'_, Centroid>,
+        tx: &mut [u8],
+    ) -> Result<usize, ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
         let bits = active.summary.centroid_bits;
         let start = self.probe.now();
-        let rig = active.rig(&self.tables)?;
-        let points = centroids
-            .iter()
-            .map(|c| {
-                let (col, row) = c.pixel::<f32>(bits);
-                active.point(&rig, c.id, col, row)
-            })
-            .collect();
-        let fingerprint = active.summary.fingerprint;
+        let rig = active.rig(&self.rays);
+        let mut out = FrameWriter::new(tx, seq, tag::POINTS).map_err(ErrorCode::Frame)?;
+        out.put(&active.summary.fingerprint)
+            .and_then(|()| out.put(&(centroids.len() as u32)))
+            .map_err(ErrorCode::Frame)?;
+        for c in centroids.iter() {
+            let (col, row) = c.pixel::<f32>(bits);
+            out.put(&active.point(&rig, c.id, col, row))
+                .map_err(ErrorCode::Frame)?;
+        }
         self.count_compute(start, centroids.len());
-        Ok(ResponseBody::Points {
-            fingerprint,
-            points,
-        })
+        out.finish().map_err(ErrorCode::Frame)
     }
 
     /// Identify unlabelled dots (the whole batch is one camera frame, so two dots claiming one
-    /// ray are both conflicts), then compute the identified ones.
-    fn identify(&mut self, dots: &[Dot]) -> Result<ResponseBody, ErrorCode> {
+    /// ray are both conflicts), then compute the identified ones into the response in `tx`.
+    fn identify(
+        &mut self,
+        seq: u32,
+        dots: &Batch<'_, Dot>,
+        tx: &mut [u8],
+    ) -> Result<usize, ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
         if active.identification.is_none() {
             return Err(ErrorCode::NoIdentification);
         }
         let bits = active.summary.centroid_bits;
         let start = self.probe.now();
-        let rig = active.rig(&self.tables)?;
-        let mut pixels = [(0.0f32, 0.0f32); MAX_BATCH];
-        for (pixel, dot) in pixels.iter_mut().zip(dots) {
-            *pixel = dot.pixel(bits);
-        }
-        let pixels = &pixels[..dots.len()];
+        let rig = active.rig(&self.rays);
         let mut found = [Assignment::Unassigned; MAX_BATCH];
-        let found = &mut found[..dots.len()];
-        self.identifier.identify_frame(pixels, found);
-        let failed = |id, status| IdentifiedPoint {
-            id,
-            result: PointResult::Failed(status),
-        };
-        let points = pixels
-            .iter()
-            .zip(found.iter())
-            .map(|(&(col, row), assignment)| match *assignment {
-                Assignment::Ray { id, .. } => IdentifiedPoint {
-                    id,
-                    result: active.point(&rig, id, col, row),
-                },
-                Assignment::Ambiguous { first, .. } => failed(first, PointStatus::Ambiguous),
-                Assignment::Conflict { id } => failed(id, PointStatus::Conflict),
-                Assignment::Unassigned => failed(0, PointStatus::Unassigned),
-            })
-            .collect();
-        let fingerprint = active.summary.fingerprint;
+        let found = found
+            .get_mut(..dots.len())
+            .ok_or(ErrorCode::Frame(WireError::Malformed))?;
+        self.identifier
+            .identify_each(dots.iter().map(|d| d.pixel::<f32>(bits)), found);
+        let mut out = FrameWriter::new(tx, seq, tag::IDENTIFIED).map_err(ErrorCode::Frame)?;
+        out.put(&active.summary.fingerprint)
+            .and_then(|()| out.put(&(dots.len() as u32)))
+            .map_err(ErrorCode::Frame)?;
+        for (dot, assignment) in dots.iter().zip(found.iter()) {
+            let (id, result) = match *assignment {
+                Assignment::Ray { id, .. } => {
+                    let (col, row) = dot.pixel::<f32>(bits);
+                    (id, active.point(&rig, id, col, row))
+                }
+                Assignment::Ambiguous { first, .. } => {
+                    (first, PointResult::Failed(PointStatus::Ambiguous))
+                }
+                Assignment::Conflict { id } => (id, PointResult::Failed(PointStatus::Conflict)),
+                Assignment::Unassigned => (0, PointResult::Failed(PointStatus::Unassigned)),
+            };
+            out.put_identified(id, &result).map_err(ErrorCode::Frame)?;
+        }
         self.count_compute(start, dots.len());
-        Ok(ResponseBody::Identified {
-            fingerprint,
-            points,
-        })
+        out.finish().map_err(ErrorCode::Frame)
     }
 
     /// Count a compute of `points` points that began at tick `start`.
@@ -381,26 +395,56 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         self.stats.points = self.stats.points.wrapping_add(points as u32);
     }
 
-    fn load_stored(&mut self) -> Option<Active> {
-        let (stored, blob) = self.store.load(&mut self.staging)?;
-        activate(blob, stored.generation, 0, &mut self.tables[0])
+    /// Load the calibration in store slot `slot` (`len` bytes) into the ray table, checked by
+    /// [`Rig::validate`] (every number finite, f and the pixel size positive, a sensor of at
+    /// least one pixel, 1 to [`MAX_RAYS`] rays sorted with unit directions), and build its
+    /// identifier. Its generation is left 0.
+    fn activate(&mut self, slot: usize, len: usize) -> Result<Active, ErrorCode> {
+        let rays = &mut self.rays;
+        let store = &mut self.store;
+        rays.clear();
+        let header = decode_calibration_from(
+            len,
+            |offset, out| store.read(slot, offset, out),
+            |r: WireRay| {
+                let ray = ProjectorRay {
+                    id: r.id,
+                    direction: Vector3::from(r.direction),
+                    offset: r.offset.map_or(Vector3::zeros(), Vector3::from),
+                };
+                rays.push(ray).is_ok()
+            },
+        )
+        .map_err(|_| ErrorCode::InvalidCalibration)?;
+        let active = checked(header, rays).ok_or(ErrorCode::InvalidCalibration)?;
+        active.build_identifier(&self.rays, &mut self.identifier)?;
+        Ok(active)
     }
 }
 
-/// The f32 calibration of a blob, its rays written into `rays` (the device's ray table number
-/// `table`), checked: every number finite, f and the pixel size positive, rays sorted with unit
-/// directions, at most [`MAX_RAYS`].
-fn activate(blob: &[u8], generation: u32, table: usize, rays: &mut RayTable) -> Option<Active> {
-    rays.clear();
-    let header = decode_calibration(blob, |r: WireRay| {
-        let ray = ProjectorRay {
-            id: r.id,
-            direction: Vector3::from(r.direction),
-            offset: r.offset.map_or(Vector3::zeros(), Vector3::from),
-        };
-        rays.push(ray).is_ok()
-    })
-    .ok()?;
+/// Write the response `tag` with `payload` into `tx`: its length.
+fn reply<T: Serialize>(tx: &mut [u8], seq: u32, tag: u32, payload: &T) -> Result<usize, ErrorCode> {
+    let mut out = FrameWriter::new(tx, seq, tag).map_err(ErrorCode::Frame)?;
+    out.put(payload).map_err(ErrorCode::Frame)?;
+    out.finish().map_err(ErrorCode::Frame)
+}
+
+/// Write the response `Error(code)` into `tx`: its length (0 if even that did not fit).
+fn error_frame(tx: &mut [u8], seq: u32, code: ErrorCode) -> usize {
+    reply(tx, seq, tag::ERROR, &code).unwrap_or(0)
+}
+
+/// A store failure as the host sees it.
+fn storage(e: StoreError) -> ErrorCode {
+    match e {
+        StoreError::TooLarge => ErrorCode::TooLarge,
+        _ => ErrorCode::Storage,
+    }
+}
+
+/// The active calibration of a decoded header over its rays, if [`Rig::validate`] and the
+/// identification parameters pass.
+fn checked(header: CalibrationHeader, rays: &RayTable) -> Option<Active> {
     let CalibrationHeader {
         fingerprint,
         method,
@@ -412,32 +456,27 @@ fn activate(blob: &[u8], generation: u32, table: usize, rays: &mut RayTable) -> 
         identification,
         ..
     } = header;
-    let numbers = [grid.pixel_size, grid.origin_col, grid.origin_row]
-        .into_iter()
-        .chain([
-            inner.f, inner.cx, inner.cy, inner.k1, inner.k2, inner.k3, inner.p1, inner.p2,
-        ])
-        .chain(r_cam_world)
-        .chain(identification.map_or([0.0; 4], |p| [p.near, p.far, p.tolerance, p.cell]));
+    let params = identification.map_or([0.0; 4], |p| [p.near, p.far, p.tolerance, p.cell]);
     let finite =
-        numbers.into_iter().all(f32::is_finite) && camera_centre.iter().all(|c| c.is_finite());
-    if !finite || grid.pixel_size <= 0.0 || inner.f <= 0.0 {
+        params.into_iter().all(f32::is_finite) && camera_centre.iter().all(|c| c.is_finite());
+    let projector_centre = Vector3::from(projector_centre);
+    let r_cam_world = Matrix3::from_row_slice(&r_cam_world);
+    let projector = Projector::new(projector_centre, &rays[..]).ok()?;
+    let rig = Rig::from_centred(grid, inner, r_cam_world, Vector3::zeros(), projector);
+    if !finite || rig.validate().is_err() {
         return None;
     }
-    let projector_centre = Vector3::from(projector_centre);
-    Projector::new(projector_centre, &rays[..]).ok()?;
     let summary = CalibrationSummary {
         fingerprint,
-        generation,
+        generation: 0,
         rays: rays.len() as u16,
         centroid_bits: centroid_fraction_bits(grid.width, grid.height),
         camera_centre,
     };
     Some(Active {
-        table,
         grid,
         inner,
-        r_cam_world: Matrix3::from_row_slice(&r_cam_world),
+        r_cam_world,
         projector_centre,
         method: method.into(),
         summary,

@@ -5,7 +5,7 @@
 //! | frame | answer |
 //! |---|---|
 //! | empty (two delimiters) | none: an idle line or a resync |
-//! | longer than [`MAX_FRAME`] | `Error(Frame(Oversized))`, seq 0, the bytes dropped |
+//! | longer than [`MAX_REQUEST`] | `Error(Frame(Oversized))`, seq 0, the bytes dropped |
 //! | not COBS, short, bad CRC | `Error(Frame(..))`, seq 0 |
 //! | CRC good, unknown kind or undecodable | `Error(Frame(..))` with the request's seq |
 //! | a request | the device's response |
@@ -13,16 +13,15 @@
 use crate::device::{Device, Probe};
 use crate::store::Store;
 use core::mem::MaybeUninit;
-use deltaz_shared::protocol::{
-    decode_request, encode_frame, ErrorCode, Response, ResponseBody, WireError, MAX_FRAME,
-};
+use deltaz_shared::protocol::stream::view_request;
+use deltaz_shared::protocol::{WireError, MAX_FRAME, MAX_REQUEST};
 use embedded_io::{Read, Write};
 use embedded_storage::nor_flash::NorFlash;
 
 /// A device behind its framing.
 pub struct Server<F, P> {
     device: Device<F, P>,
-    rx: [u8; MAX_FRAME],
+    rx: [u8; MAX_REQUEST],
     rx_len: usize,
     overflow: bool,
     tx: [u8; MAX_FRAME],
@@ -51,7 +50,7 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
     fn new(store: Store<F>, probe: P) -> Self {
         Self {
             device: Device::new(store, probe),
-            rx: [0; MAX_FRAME],
+            rx: [0; MAX_REQUEST],
             rx_len: 0,
             overflow: false,
             tx: [0; MAX_FRAME],
@@ -81,32 +80,15 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
             return None;
         }
         let len = core::mem::take(&mut self.rx_len);
-        let response = if core::mem::take(&mut self.overflow) {
-            Err((0, WireError::Oversized))
+        let len = if core::mem::take(&mut self.overflow) {
+            self.device.refuse(0, WireError::Oversized, &mut self.tx)
         } else if len == 0 {
             return None;
         } else {
-            decode_request(&mut self.rx[..len])
-        };
-        let response = match response {
-            Ok(request) => self.device.handle(request),
-            Err((seq, error)) => {
-                self.device.count_bad_frame();
-                Response {
-                    seq,
-                    body: ResponseBody::Error(ErrorCode::Frame(error)),
-                }
-            }
-        };
-        // A response always fits MAX_FRAME (see its definition); should one not, say so.
-        let len = match encode_frame(&response, &mut self.tx) {
-            Ok(frame) => frame.len(),
-            Err(e) => {
-                let error = Response {
-                    seq: response.seq,
-                    body: ResponseBody::Error(ErrorCode::Frame(e)),
-                };
-                encode_frame(&error, &mut self.tx).map_or(0, |f| f.len())
+            // The request is read in place and the response written straight into `tx`.
+            match view_request(&mut self.rx[..len]) {
+                Ok((seq, request)) => self.device.handle(seq, request, &mut self.tx),
+                Err((seq, error)) => self.device.refuse(seq, error, &mut self.tx),
             }
         };
         Some(&self.tx[..len])

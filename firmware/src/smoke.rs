@@ -1,14 +1,13 @@
 //! The boot-time smoke computation: one intersection on the paper's rig (Tables 1-4), so a board
 //! shows at once that the shared model runs on it.
 
-use deltaz_shared::camera::PixelGrid;
 use deltaz_shared::collinearity::Camera;
 use deltaz_shared::paper::{
     table2_exterior, table4_direction, DC40_GRID, TABLE1_INNER, TABLE3_GLOBAL,
 };
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::rig::{Method, Rig};
-use nalgebra::{convert, Vector3};
+use nalgebra::Vector3;
 
 /// The id of the smoke dot, carrying Table 4's ray "12".
 pub const RAY: u16 = 12;
@@ -42,34 +41,9 @@ pub fn paper_rig() -> Rig<f64, [ProjectorRay<f64>; 1]> {
     Rig::new(grid, inner, &exterior, projector)
 }
 
-/// [`paper_rig`] cast to f32 after centring in f64, as an upload does.
-pub fn paper_rig_f32() -> Rig<f32, [ProjectorRay<f32>; 1]> {
-    let rig = paper_rig();
-    let c = |v: f64| -> f32 { convert(v) };
-    let v = |x: Vector3<f64>| x.map(c);
-    let g = rig.grid();
-    let grid = PixelGrid {
-        pixel_size: c(g.pixel_size),
-        width: g.width,
-        height: g.height,
-        origin_col: c(g.origin_col),
-        origin_row: c(g.origin_row),
-    };
-    let p = rig.projector_centred();
-    let rays = [ProjectorRay {
-        id: p.rays()[0].id,
-        direction: v(p.rays()[0].direction),
-        offset: v(p.rays()[0].offset),
-    }];
-    let projector = Projector::new(v(p.centre()), rays)
-        .unwrap_or_else(|_| unreachable!("cast of a valid table"));
-    Rig::from_centred(
-        grid,
-        rig.inner().cast(),
-        rig.r_cam_world().map(c),
-        v(rig.camera_centre()),
-        projector,
-    )
+/// [`paper_rig`] cast to f32 after centring in f64, as an upload does ([`Rig::cast`]).
+pub fn paper_rig_f32() -> Option<Rig<f32, heapless::Vec<ProjectorRay<f32>, 1>>> {
+    paper_rig().cast().ok()
 }
 
 /// The pixel (col, row) where the camera sees ray 12 hit the plate Z = 0 (f64).
@@ -83,7 +57,7 @@ pub fn smoke_pixel() -> Option<(f64, f64)> {
 /// The smoke point in f32 (world mm), or `None` if the geometry were degenerate.
 pub fn smoke_point() -> Option<Vector3<f32>> {
     let (col, row) = smoke_pixel()?;
-    paper_rig_f32()
+    paper_rig_f32()?
         .reconstruct(RAY, col as f32, row as f32, Method::ClosestApproach)
         .ok()
         .map(|hit| hit.point)

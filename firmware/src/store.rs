@@ -66,6 +66,40 @@ pub struct Stored {
     pub len: usize,
 }
 
+/// The largest write unit of a flash the store works with (bytes).
+const MAX_WRITE: usize = 16;
+
+/// A blob being written into the spare slot ([`Store::begin`]); not yet valid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Pending {
+    /// The slot written.
+    pub slot: usize,
+    generation: u32,
+    len: usize,
+    /// Bytes on the flash.
+    written: usize,
+    /// Bytes short of a write unit, waiting for the next.
+    tail: [u8; MAX_WRITE],
+    tail_len: usize,
+}
+
+impl Pending {
+    /// The announced length.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the announced length is 0.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Bytes taken so far.
+    pub fn received(&self) -> usize {
+        self.written + self.tail_len
+    }
+}
+
 /// Two slots of a NOR flash (see the module docs).
 pub struct Store<F> {
     flash: F,
@@ -88,6 +122,7 @@ impl<F: NorFlash> Store<F> {
             || (a.0 < b.1 && b.0 < a.1)
             || !HEADER.is_multiple_of(F::WRITE_SIZE)
             || !PIECE.is_multiple_of(F::WRITE_SIZE)
+            || F::WRITE_SIZE > MAX_WRITE
         {
             return Err(StoreError::Layout);
         }
@@ -133,9 +168,23 @@ impl<F: NorFlash> Store<F> {
         (CRC.checksum(blob) == self.header(stored.slot)?.2).then_some((stored, &*blob))
     }
 
-    /// Save `blob` as the new newest calibration (steps in the module docs).
+    /// Save `blob` as the new newest calibration (steps in the module docs): [`Store::begin`],
+    /// [`Store::append`], [`Store::seal`].
     pub fn save(&mut self, blob: &[u8]) -> Result<Stored, StoreError> {
-        if blob.len() > self.capacity() {
+        let mut pending = self.begin(blob.len())?;
+        for piece in blob.chunks(PIECE) {
+            self.append(&mut pending, piece)?;
+        }
+        if self.pending_crc(&mut pending)? != CRC.checksum(blob) {
+            return Err(StoreError::Verify);
+        }
+        self.seal(&pending)
+    }
+
+    /// Start saving a blob of `len` bytes (step 1): erase the slot that does not hold the newest
+    /// calibration. The newest stays valid until [`Store::seal`].
+    pub fn begin(&mut self, len: usize) -> Result<Pending, StoreError> {
+        if len > self.capacity() {
             return Err(StoreError::TooLarge);
         }
         let newest = self.newest();
@@ -143,24 +192,118 @@ impl<F: NorFlash> Store<F> {
             Some(s) => 1 - s.slot,
             None => 0,
         };
-        let generation = newest.map_or(1, |s| s.generation.wrapping_add(1));
         let (start, end) = self.slots[slot];
         self.flash.erase(start, end)?;
-        let data = start + HEADER as u32;
-        let mut piece = [0xFFu8; PIECE];
-        for (i, chunk) in blob.chunks(PIECE).enumerate() {
-            let padded = chunk.len().div_ceil(F::WRITE_SIZE) * F::WRITE_SIZE;
-            piece.fill(0xFF);
-            piece[..chunk.len()].copy_from_slice(chunk);
-            self.flash
-                .write(data + (i * PIECE) as u32, &piece[..padded])?;
+        Ok(Pending {
+            slot,
+            generation: newest.map_or(1, |s| s.generation.wrapping_add(1)),
+            len,
+            written: 0,
+            tail: [0xFF; MAX_WRITE],
+            tail_len: 0,
+        })
+    }
+
+    /// Write the blob's next bytes (step 2), as they arrive: whole write units go to the flash,
+    /// a remainder waits in `pending` for the next bytes.
+    pub fn append(&mut self, pending: &mut Pending, mut data: &[u8]) -> Result<(), StoreError> {
+        let unit = F::WRITE_SIZE;
+        if pending.received() + data.len() > pending.len {
+            return Err(StoreError::TooLarge);
         }
-        let crc = CRC.checksum(blob);
-        if self.data_crc(slot, blob.len())? != crc {
+        let base = self.slots[pending.slot].0 + HEADER as u32;
+        if pending.tail_len > 0 {
+            let take = (unit - pending.tail_len).min(data.len());
+            pending.tail[pending.tail_len..pending.tail_len + take].copy_from_slice(&data[..take]);
+            pending.tail_len += take;
+            data = &data[take..];
+            if pending.tail_len < unit {
+                return Ok(());
+            }
+            self.flash
+                .write(base + pending.written as u32, &pending.tail[..unit])?;
+            pending.written += unit;
+            pending.tail_len = 0;
+        }
+        let whole = data.len() / unit * unit;
+        if whole > 0 {
+            self.flash
+                .write(base + pending.written as u32, &data[..whole])?;
+            pending.written += whole;
+        }
+        let rest = &data[whole..];
+        pending.tail[..rest.len()].copy_from_slice(rest);
+        pending.tail_len = rest.len();
+        Ok(())
+    }
+
+    /// Write the remainder, padded with 0xFF, and read back the CRC-32 of what was written
+    /// (step 3).
+    pub fn pending_crc(&mut self, pending: &mut Pending) -> Result<u32, StoreError> {
+        if pending.tail_len > 0 {
+            let unit = F::WRITE_SIZE;
+            pending.tail[pending.tail_len..].fill(0xFF);
+            let base = self.slots[pending.slot].0 + HEADER as u32;
+            self.flash
+                .write(base + pending.written as u32, &pending.tail[..unit])?;
+            pending.written += pending.tail_len;
+            pending.tail_len = 0;
+        }
+        self.data_crc(pending.slot, pending.received())
+    }
+
+    /// Whether the pending blob's bytes from `offset` are `data` (a chunk sent again).
+    pub fn matches(&mut self, pending: &Pending, offset: usize, data: &[u8]) -> bool {
+        let Some(end) = offset.checked_add(data.len()) else {
+            return false;
+        };
+        if end > pending.received() {
+            return false;
+        }
+        let mut piece = [0u8; 64];
+        for (i, expected) in data.chunks(piece.len()).enumerate() {
+            let at = offset + i * piece.len();
+            let got = &mut piece[..expected.len()];
+            for (k, b) in got.iter_mut().enumerate() {
+                if let Some(&t) = (at + k)
+                    .checked_sub(pending.written)
+                    .and_then(|t| pending.tail.get(t))
+                {
+                    *b = t;
+                } else if self
+                    .read(pending.slot, at + k, core::slice::from_mut(b))
+                    .is_err()
+                {
+                    return false;
+                }
+            }
+            if got != expected {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Read `out.len()` bytes of the blob in `slot` from `offset` (a pending one too).
+    pub fn read(&mut self, slot: usize, offset: usize, out: &mut [u8]) -> Result<(), StoreError> {
+        if offset + out.len() > self.capacity() {
+            return Err(StoreError::TooLarge);
+        }
+        let start = self.slots[slot].0 + (HEADER + offset) as u32;
+        self.flash.read(start, out)?;
+        Ok(())
+    }
+
+    /// Make a complete, checked blob the newest calibration (steps 4-5): write its header and
+    /// validate the slot.
+    pub fn seal(&mut self, pending: &Pending) -> Result<Stored, StoreError> {
+        let slot = pending.slot;
+        if pending.tail_len > 0 || pending.received() != pending.len {
             return Err(StoreError::Verify);
         }
+        let crc = self.data_crc(slot, pending.len)?;
         let mut header = [0xFFu8; HEADER];
-        for (i, v) in [MAGIC, generation, blob.len() as u32, crc]
+        for (i, v) in [MAGIC, pending.generation, pending.len as u32, crc]
             .into_iter()
             .enumerate()
         {
@@ -168,11 +311,11 @@ impl<F: NorFlash> Store<F> {
         }
         let header_crc = CRC.checksum(&header[..16]);
         header[16..20].copy_from_slice(&header_crc.to_le_bytes());
-        self.flash.write(start, &header)?;
+        self.flash.write(self.slots[slot].0, &header)?;
         let stored = Stored {
             slot,
-            generation,
-            len: blob.len(),
+            generation: pending.generation,
+            len: pending.len,
         };
         if self.check(slot) != Some(stored) {
             return Err(StoreError::Verify);

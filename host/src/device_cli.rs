@@ -3,12 +3,13 @@
 use crate::cli::dot_observations;
 use crate::io::atomic::write_atomic;
 use crate::io::observations::read_observations;
-use crate::link::{Device, DeviceError, InProcess, Qemu, Serial, Transport, WorldPoint};
+use crate::link::{
+    Device, DeviceError, InProcess, PointOutcome, Qemu, Serial, Transport, WorldPoint,
+};
 use crate::ply::{write_ply, Encoding};
 use crate::reconstruct::ReconstructedPoint;
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
-use deltaz_shared::collinearity::project_camera_point;
 use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::{PointStatus, MAX_BATCH};
 use deltaz_shared::rig::Method;
@@ -26,6 +27,8 @@ pub struct LinkArgs {
     pub qemu: Option<PathBuf>,
     /// Response timeout.
     pub timeout: Duration,
+    /// Print one JSON object on stdout instead of text.
+    pub json: bool,
 }
 
 /// Whatever transport the arguments name.
@@ -63,11 +66,33 @@ pub fn ports() -> Result<()> {
     Ok(())
 }
 
-/// `deltaz device info`.
+/// `deltaz device info` (`--json`: one JSON object on stdout).
 pub fn info(args: &LinkArgs) -> Result<()> {
     let mut device = connect(args)?;
     let i = device.info()?;
     let [a, b, c] = i.firmware;
+    if args.json {
+        let calibration = i.calibration.map(|s| {
+            serde_json::json!({
+                "fingerprint": format!("{:016x}", s.fingerprint),
+                "generation": s.generation,
+                "rays": s.rays,
+                "centroid_bits": s.centroid_bits,
+                "camera_centre_mm": s.camera_centre,
+            })
+        });
+        let json = serde_json::json!({
+            "firmware": format!("{a}.{b}.{c}"),
+            "protocol": i.protocol,
+            "ray_capacity": i.ray_capacity,
+            "max_batch": i.max_batch,
+            "max_frame": i.max_frame,
+            "max_calibration": i.max_calibration,
+            "calibration": calibration,
+        });
+        println!("{json}");
+        return Ok(());
+    }
     println!("firmware {a}.{b}.{c}, protocol {}", i.protocol);
     println!(
         "capacity: {} rays, {} centroids per frame, frames up to {} bytes, calibration up to {} bytes",
@@ -171,6 +196,39 @@ pub struct StreamArgs {
 /// One camera frame: its image label and centroids `(ray id, col, row)`.
 type Frame = (String, Vec<(u16, f64, f64)>);
 
+/// Frames streamed (pipelined) between two looks at the progress line.
+const STREAM_GROUP: usize = 16;
+
+/// The results `(ray id, point or status)` of a group of frames, each frame in order.
+fn stream_group(
+    device: &mut AnyDevice,
+    group: &[Frame],
+    identify: bool,
+) -> Result<Vec<Vec<(u16, PointOutcome)>>, DeviceError> {
+    if identify {
+        let dots: Vec<Vec<(f64, f64)>> = group
+            .iter()
+            .map(|(_, f)| f.iter().map(|&(_, col, row)| (col, row)).collect())
+            .collect();
+        return device.identify_frames(&dots);
+    }
+    // A frame of more than MAX_BATCH centroids goes as several requests.
+    let batches: Vec<&[(u16, f64, f64)]> = group
+        .iter()
+        .flat_map(|(_, f)| f.chunks(MAX_BATCH))
+        .collect();
+    let mut results = device.compute_frames(&batches)?.into_iter();
+    Ok(group
+        .iter()
+        .map(|(_, f)| {
+            let points: Vec<PointOutcome> = (0..f.len().div_ceil(MAX_BATCH))
+                .flat_map(|_| results.next().unwrap_or_default())
+                .collect();
+            f.iter().map(|&(id, _, _)| id).zip(points).collect()
+        })
+        .collect())
+}
+
 /// `deltaz device stream`: frames in, points out, with a live points/s figure.
 pub fn stream(args: &StreamArgs) -> Result<()> {
     let mut device = connect(&args.link)?;
@@ -181,9 +239,10 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
             Err(DeviceError::Fingerprint { .. }) if args.link.port.is_none() => {
                 upload_to(&mut device, system, args.method, args.identification)?;
             }
-            Err(e) => return Err(e).context(
+            Err(e @ DeviceError::Fingerprint { .. }) => return Err(e).context(
                 "the device does not hold this system's calibration: run `deltaz device upload`",
             ),
+            Err(e) => return Err(e).context("asking the device for its calibration"),
         }
     }
     let frames = match &args.source {
@@ -212,44 +271,51 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
                 .collect()
         }
     };
+    if args.identify {
+        if let Some((image, frame)) = frames.iter().find(|(_, f)| f.len() > MAX_BATCH) {
+            bail!(
+                "{image}: {} dots, the device identifies at most {MAX_BATCH} per frame",
+                frame.len()
+            );
+        }
+    }
     let start = Instant::now();
     let mut shown = Instant::now();
+    let mut progress = false;
     let (mut points, mut failed, mut csv) =
         (Vec::new(), 0usize, String::from("image,point,X,Y,Z,miss\n"));
     let mut unidentified = 0usize;
-    for (image, frame) in &frames {
-        let results = if args.identify {
-            if frame.len() > MAX_BATCH {
-                bail!(
-                    "{image}: {} dots, the device identifies at most {MAX_BATCH} per frame",
-                    frame.len()
-                );
+    // Groups of frames, each pipelined (several requests in flight), between progress lines.
+    for group in frames.chunks(STREAM_GROUP) {
+        let results = stream_group(&mut device, group, args.identify).inspect_err(|_| {
+            if progress {
+                // The error goes on its own line, not after the progress counter.
+                eprintln!();
             }
-            let dots: Vec<(f64, f64)> = frame.iter().map(|&(_, col, row)| (col, row)).collect();
-            device.identify(&dots)?
-        } else {
-            let results = device.compute(frame)?;
-            frame.iter().map(|&(id, _, _)| id).zip(results).collect()
-        };
-        for (id, r) in results {
-            match r {
-                Ok(WorldPoint { point, miss }) => {
-                    csv += &format!("{image},{id},{},{},{},{miss}\n", point.x, point.y, point.z);
-                    points.push(ReconstructedPoint {
-                        id,
-                        point,
-                        miss,
-                        sigma: None,
-                    });
+        })?;
+        for ((image, _), results) in group.iter().zip(results) {
+            for (id, r) in results {
+                match r {
+                    Ok(WorldPoint { point, miss }) => {
+                        csv +=
+                            &format!("{image},{id},{},{},{},{miss}\n", point.x, point.y, point.z);
+                        points.push(ReconstructedPoint {
+                            id,
+                            point,
+                            miss,
+                            sigma: None,
+                        });
+                    }
+                    Err(
+                        PointStatus::Unassigned | PointStatus::Ambiguous | PointStatus::Conflict,
+                    ) => unidentified += 1,
+                    Err(_) => failed += 1,
                 }
-                Err(PointStatus::Unassigned | PointStatus::Ambiguous | PointStatus::Conflict) => {
-                    unidentified += 1
-                }
-                Err(_) => failed += 1,
             }
         }
-        if shown.elapsed() > Duration::from_millis(500) {
+        if shown.elapsed() > Duration::from_millis(500) && !args.link.json {
             shown = Instant::now();
+            progress = true;
             let n = points.len() + failed + unidentified;
             eprint!(
                 "\r{n} points, {:.0} points/s",
@@ -257,17 +323,58 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
             );
         }
     }
+    let seconds = start.elapsed().as_secs_f64();
     let n = points.len() + failed + unidentified;
     let (sent, received) = device.byte_counts();
-    if args.identify {
-        eprintln!("\r{unidentified} dots not identified (unassigned, ambiguous or conflicts)");
+    let line = device.line_counts();
+    let bytes_per_point = (sent + received) as f64 / n.max(1) as f64;
+    if args.link.json {
+        let stats = device.stats().context("reading the device's statistics")?;
+        let json = serde_json::json!({
+            "frames": frames.len(),
+            "points": points.len(),
+            "without_point": failed,
+            "unidentified": unidentified,
+            "seconds": seconds,
+            "points_per_s": n as f64 / seconds,
+            "bytes_sent": sent,
+            "bytes_received": received,
+            "bytes_per_point": bytes_per_point,
+            "line": {
+                "resent": line.resent,
+                "damaged": line.damaged,
+                "unreadable": line.unreadable,
+                "stale": line.stale,
+            },
+            "stats": {
+                "requests": stats.requests,
+                "bad_frames": stats.bad_frames,
+                "points": stats.points,
+                "last_compute_ticks": stats.last_compute_ticks,
+                "last_compute_points": stats.last_compute_points,
+                "stack_peak_bytes": stats.stack_peak,
+            },
+        });
+        println!("{json}");
+    } else {
+        if progress {
+            eprintln!();
+        }
+        if args.identify {
+            eprintln!("{unidentified} dots not identified (unassigned, ambiguous or conflicts)");
+        }
+        eprintln!(
+            "{n} points in {} frames, {:.0} points/s, {bytes_per_point:.2} bytes per point on the link, {failed} without a point",
+            frames.len(),
+            n as f64 / seconds,
+        );
+        if line.resent > 0 {
+            eprintln!(
+                "the link resent {} requests ({} damaged frames, {} unreadable, {} stale answers)",
+                line.resent, line.damaged, line.unreadable, line.stale
+            );
+        }
     }
-    eprintln!(
-        "\r{n} points in {} frames, {:.0} points/s, {:.2} bytes per point on the link, {failed} without a point",
-        frames.len(),
-        n as f64 / start.elapsed().as_secs_f64(),
-        (sent + received) as f64 / n.max(1) as f64
-    );
     if let Some(out) = &args.out {
         write_ply(out, &points, Encoding::BinaryLittleEndian)?;
     }
@@ -287,11 +394,7 @@ pub fn plate_dots(rig: &SystemRig, z: f64) -> Vec<(u16, f64, f64)> {
         .filter_map(|ray| {
             let line = projector.ray(ray.id).ok()?;
             let t = (z - x0.z - line.point.z) / line.direction.z;
-            let cam = rig.r_cam_world() * line.at(t);
-            let refined = project_camera_point(rig.inner().f, &cam).ok()?;
-            let (col, row) = rig
-                .grid()
-                .photo_to_pixel(rig.inner().unrefine(refined).ok()?);
+            let (col, row) = rig.pixel_of_centred(&line.at(t)).ok()?;
             rig.grid().contains(col, row).then_some((ray.id, col, row))
         })
         .collect()

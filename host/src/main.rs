@@ -200,6 +200,9 @@ struct LinkOpts {
     /// Response timeout (ms).
     #[arg(long, global = true, default_value_t = 3000)]
     timeout_ms: u64,
+    /// `info` and `stream`: print one JSON object on stdout.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 impl LinkOpts {
@@ -215,6 +218,7 @@ impl LinkOpts {
                 }
             }),
             timeout: std::time::Duration::from_millis(self.timeout_ms),
+            json: self.json,
         }
     }
 }

@@ -169,33 +169,6 @@ impl SystemContent {
         let inner = &self.camera.inner;
         let grid = &self.camera.grid;
         let pose = &self.camera.pose;
-        let numbers = [
-            inner.f,
-            inner.cx,
-            inner.cy,
-            inner.k1,
-            inner.k2,
-            inner.k3,
-            inner.p1,
-            inner.p2,
-            grid.pixel_size,
-            grid.origin_col,
-            grid.origin_row,
-            pose.kappa,
-            pose.phi,
-            pose.omega,
-        ];
-        if !numbers
-            .iter()
-            .chain(&pose.centre)
-            .chain(&self.projector.centre)
-            .all(|v| v.is_finite())
-        {
-            bail!("the camera or the projector centre has a NaN or infinite parameter");
-        }
-        if !(inner.f > 0.0 && grid.pixel_size > 0.0) {
-            bail!("focal length and pixel size must be positive");
-        }
         let mut rays = Vec::with_capacity(self.projector.rays.len());
         for r in &self.projector.rays {
             let direction = Vector3::new(r.l, r.m, r.n);
@@ -207,7 +180,7 @@ impl SystemContent {
                 );
             }
             let norm = direction.norm();
-            if (norm - 1.0).abs() > 1e-6 {
+            if (norm - 1.0).abs() > deltaz_shared::projector::UNIT_TOLERANCE {
                 bail!(
                     "ray {}: direction cosines are not a unit vector (|(l, m, n)| = {norm})",
                     r.id
@@ -225,7 +198,9 @@ impl SystemContent {
         }
         let projector = Projector::new(Vector3::from(self.projector.centre), rays)
             .map_err(|e| anyhow::anyhow!("projector: {e}"))?;
-        Ok(Rig::new(*grid, *inner, &(*pose).into(), projector))
+        let rig = Rig::new(*grid, *inner, &(*pose).into(), projector);
+        rig.validate().map_err(|e| anyhow::anyhow!("system: {e}"))?;
+        Ok(rig)
     }
 }
 

@@ -23,11 +23,10 @@
 //! 160 mm, see the host's identification tests); [`Identifier::close_pairs`] counts the pairs of
 //! rays that come too close, to check a design.
 
-use crate::collinearity::project_camera_point;
 use crate::projector::ProjectorRay;
 use crate::rig::Rig;
 use crate::{lit, Error};
-use nalgebra::{RealField, Vector2, Vector3};
+use nalgebra::{RealField, Vector2};
 
 /// Pieces of each epipolar polyline.
 pub const SUBSEGMENTS: usize = 4;
@@ -157,8 +156,9 @@ pub struct Identifier<T: RealField, const R: usize, const C: usize, const E: usi
     cell: T,
     grid_cols: usize,
     grid_rows: usize,
-    starts: [u32; C],
-    counts: [u16; C],
+    /// Where each cell's entries start in `entries` (they end where the next cell's start).
+    starts: [u16; C],
+    total: u16,
     entries: [u16; E],
 }
 
@@ -179,8 +179,9 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
 
     /// An identifier of no rays: every dot is unassigned.
     pub fn empty() -> Self {
-        // Ray indices and per-cell counts are u16.
+        // Ray indices and entry positions are u16.
         const { assert!(R <= u16::MAX as usize, "at most 65535 rays") };
+        const { assert!(E <= u16::MAX as usize, "at most 65535 entries") };
         let zero = EpipolarSegment {
             id: 0,
             points: [Vector2::zeros(); SUBSEGMENTS + 1],
@@ -193,7 +194,7 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
             grid_cols: 0,
             grid_rows: 0,
             starts: [0; C],
-            counts: [0; C],
+            total: 0,
             entries: [0; E],
         }
     }
@@ -217,6 +218,7 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
     /// Forget every ray: every dot is unassigned.
     pub fn clear(&mut self) {
         self.rays = 0;
+        self.total = 0;
         self.grid_cols = 0;
         self.grid_rows = 0;
     }
@@ -250,31 +252,31 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
         self.cell = cell;
         self.grid_cols = grid_cols;
         self.grid_rows = grid_rows;
-        self.counts.fill(0);
+        self.starts.fill(0);
         for (k, ray) in rays.iter().enumerate() {
             self.segments[k] = epipolar_segment(rig, ray, depth)
                 .map_err(|e| IdentifyError::Geometry(ray.id, e))?;
         }
-        // Two passes over the cells each segment touches: count, then fill.
+        // Two passes over the cells each segment touches: count, then fill (each cell's slots
+        // from its end down, the rays in reverse: every cell lists its rays in order).
         for k in 0..self.rays {
             let segment = self.segments[k];
-            self.for_each_cell(&segment, |me, cell| me.counts[cell] += 1);
+            self.for_each_cell(&segment, |me, cell| me.starts[cell] += 1);
         }
-        let mut total = 0u32;
-        for cell in 0..grid_cols * grid_rows {
-            self.starts[cell] = total;
-            total += u32::from(self.counts[cell]);
-            self.counts[cell] = 0;
+        let mut total = 0usize;
+        for start in &mut self.starts[..grid_cols * grid_rows] {
+            total += usize::from(*start);
+            if total > E {
+                return Err(IdentifyError::TooManyEntries);
+            }
+            *start = total as u16;
         }
-        if total as usize > E {
-            return Err(IdentifyError::TooManyEntries);
-        }
-        for k in 0..self.rays {
+        self.total = total as u16;
+        for k in (0..self.rays).rev() {
             let segment = self.segments[k];
             self.for_each_cell(&segment, |me, cell| {
-                let slot = me.starts[cell] as usize + usize::from(me.counts[cell]);
-                me.entries[slot] = k as u16;
-                me.counts[cell] += 1;
+                me.starts[cell] -= 1;
+                me.entries[usize::from(me.starts[cell])] = k as u16;
             });
         }
         Ok(())
@@ -350,10 +352,18 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
 
     /// Total cell entries of the lookup grid (its memory use beyond the segments).
     pub fn entries(&self) -> usize {
-        self.counts[..self.grid_cols * self.grid_rows]
-            .iter()
-            .map(|&n| usize::from(n))
-            .sum()
+        usize::from(self.total)
+    }
+
+    /// The entries of grid cell `cell`.
+    fn cell_entries(&self, cell: usize) -> &[u16] {
+        let start = usize::from(self.starts[cell]);
+        let end = if cell + 1 < self.grid_cols * self.grid_rows {
+            usize::from(self.starts[cell + 1])
+        } else {
+            usize::from(self.total)
+        };
+        &self.entries[start..end]
     }
 
     /// The assignment of one dot at pixel (col, row), by itself (see [`Self::identify_frame`]).
@@ -366,10 +376,9 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
         let Some(cell) = self.cell_of(p) else {
             return (Assignment::Unassigned, 0);
         };
-        let start = self.starts[cell] as usize;
         let mut first: Option<(T, usize)> = None;
         let mut second: Option<(T, usize)> = None;
-        for &k in &self.entries[start..start + usize::from(self.counts[cell])] {
+        for &k in self.cell_entries(cell) {
             let k = usize::from(k);
             let d = self.segments[k].distance(p);
             if d > self.tolerance {
@@ -410,16 +419,28 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
     /// each dot by [`Self::identify`], then every ray claimed by more than one dot turned into
     /// [`Assignment::Conflict`] for all of them. Returns the number identified.
     pub fn identify_frame(&self, dots: &[(T, T)], out: &mut [Assignment<T>]) -> usize {
+        self.identify_each(dots.iter().copied(), out)
+    }
+
+    /// [`Self::identify_frame`] of dots from an iterator (a device reads them from its receive
+    /// buffer): as many as `out` holds.
+    pub fn identify_each(
+        &self,
+        dots: impl IntoIterator<Item = (T, T)>,
+        out: &mut [Assignment<T>],
+    ) -> usize {
         let mut claims = [0u8; R];
-        for (dot, slot) in dots.iter().zip(out.iter_mut()) {
+        let mut n = 0;
+        for (dot, slot) in dots.into_iter().zip(out.iter_mut()) {
             let (assignment, k) = self.nearest(Vector2::new(dot.0, dot.1));
             if let Assignment::Ray { .. } = assignment {
                 claims[k] = claims[k].saturating_add(1);
             }
             *slot = assignment;
+            n += 1;
         }
         let mut identified = 0;
-        for slot in out.iter_mut().take(dots.len()) {
+        for slot in out.iter_mut().take(n) {
             if let Assignment::Ray { id, .. } = *slot {
                 let k = self.segments[..self.rays]
                     .binary_search_by_key(&id, |s| s.id)
@@ -489,28 +510,16 @@ fn pieces_cross<T: RealField + Copy>(
 }
 
 /// The epipolar polyline of one ray: the camera images of its points at [`SUBSEGMENTS`] + 1
-/// depths evenly spaced over the range.
+/// depths evenly spaced over the range ([`Rig::pixel_at_depth`]).
 fn epipolar_segment<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>>(
     rig: &Rig<T, S>,
     ray: &ProjectorRay<T>,
     depth: DepthRange<T>,
 ) -> Result<EpipolarSegment<T>, Error> {
-    let line = rig.projector_centred().ray(ray.id)?;
-    let r = rig.r_cam_world();
-    // Camera-system z along the ray: z(λ) = z0 + λ dz; the depth d means z = −d.
-    let start: Vector3<T> = r * line.point;
-    let dir: Vector3<T> = r * line.direction;
-    if dir.z.abs() < lit(1e-12) {
-        return Err(Error::DegenerateGeometry);
-    }
     let mut points = [Vector2::zeros(); SUBSEGMENTS + 1];
     for (k, out) in points.iter_mut().enumerate() {
         let t = lit::<T>(k as f64 / SUBSEGMENTS as f64);
-        let d = depth.near + (depth.far - depth.near) * t;
-        let lambda = (-d - start.z) / dir.z;
-        let cam = start + dir * lambda;
-        let refined = project_camera_point(rig.inner().f, &cam)?;
-        let (col, row) = rig.grid().photo_to_pixel(rig.inner().unrefine(refined)?);
+        let (col, row) = rig.pixel_at_depth(ray.id, depth.near + (depth.far - depth.near) * t)?;
         *out = Vector2::new(col, row);
     }
     Ok(EpipolarSegment { id: ray.id, points })
@@ -522,6 +531,7 @@ mod tests {
     use crate::camera::{InnerOrientation, PixelGrid};
     use crate::collinearity::{Camera, ExteriorOrientation};
     use crate::projector::Projector;
+    use nalgebra::Vector3;
 
     fn camera() -> Camera<f64> {
         Camera {
@@ -568,12 +578,7 @@ mod tests {
 
     /// The pixel of ray `id` hitting a surface at camera distance `depth`.
     fn dot(rays: &[ProjectorRay<f64>], id: u16, depth: f64) -> (f64, f64) {
-        let cam = camera();
-        let ray = rays.iter().find(|r| r.id == id).unwrap();
-        let r = cam.exterior.r_cam_world();
-        let (p, d) = (r * Vector3::from(PROJECTOR), r * ray.direction);
-        let world = Vector3::from(PROJECTOR) + ray.direction * ((-depth - p.z) / d.z);
-        cam.world_to_pixel(&world).unwrap()
+        rig(rays).pixel_at_depth(id, depth).unwrap()
     }
 
     const DEPTH: DepthRange<f64> = DepthRange {
@@ -723,29 +728,7 @@ mod tests {
         let host = rig(&rays);
         let ident64 = Small::new(&host, DEPTH, 0.5, 16.0).unwrap();
         let c = |v: f64| v as f32;
-        let v = |x: Vector3<f64>| x.map(c);
-        let rays32 = rays.map(|r| ProjectorRay {
-            id: r.id,
-            direction: v(r.direction),
-            offset: v(r.offset),
-        });
-        let g = host.grid();
-        let grid32 = PixelGrid {
-            pixel_size: c(g.pixel_size),
-            width: g.width,
-            height: g.height,
-            origin_col: c(g.origin_col),
-            origin_row: c(g.origin_row),
-        };
-        let projector32 =
-            Projector::new(v(host.projector_centred().centre()), &rays32[..]).unwrap();
-        let device = Rig::from_centred(
-            grid32,
-            host.inner().cast::<f32>(),
-            host.r_cam_world().map(c),
-            v(host.camera_centre()),
-            projector32,
-        );
+        let device: Rig<f32, Vec<ProjectorRay<f32>>> = host.cast().unwrap();
         let ident32 = Identifier::<f32, 16, 1600, 4000>::new(
             &device,
             DepthRange {

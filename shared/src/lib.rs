@@ -61,6 +61,9 @@ pub enum Error {
     InvalidRay(u16),
     /// The projector's ray table is not sorted by strictly increasing id.
     UnsortedRays,
+    /// A calibration with a non-positive focal length or pixel size, an empty sensor or no
+    /// rays (see [`rig::Rig::validate`]).
+    InvalidCalibration,
 }
 
 impl core::fmt::Display for Error {
@@ -78,6 +81,9 @@ impl core::fmt::Display for Error {
                 return write!(f, "projector ray {id} has a NaN or non-unit direction")
             }
             Error::UnsortedRays => "the projector's rays are not sorted by strictly increasing id",
+            Error::InvalidCalibration => {
+                "the calibration has a non-positive focal length or pixel size, an empty sensor or no rays"
+            }
         })
     }
 }

@@ -7,6 +7,11 @@
 use crate::{lit, Error, Result};
 use nalgebra::{RealField, Vector3};
 
+/// How far from 1 the length of a ray's direction may be (relative), everywhere a calibration
+/// is read: it admits direction cosines printed to 6 decimals (|error| ≤ 1.5·10⁻⁶) and an f32
+/// cast of a unit vector (≤ 3·10⁻⁷), and refuses anything not meant as a unit vector.
+pub const UNIT_TOLERANCE: f64 = 1e-5;
+
 /// A 3D line: a point on it and a direction (not necessarily unit).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray<T: RealField> {
@@ -44,12 +49,12 @@ pub struct Projector<T: RealField, S> {
 
 impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
     /// A projector from its centre and its rays, checked: ids strictly increasing, every direction
-    /// finite and of unit length (to 1e-4 relative), every offset finite.
+    /// finite and of unit length (to [`UNIT_TOLERANCE`]), every offset finite.
     pub fn new(centre: Vector3<T>, rays: S) -> Result<Self> {
         if !centre.iter().all(|c| c.is_finite()) {
             return Err(Error::NotFinite);
         }
-        let tol = lit::<T>(1e-4);
+        let tol = lit::<T>(UNIT_TOLERANCE);
         let mut previous: Option<u16> = None;
         for ray in rays.as_ref() {
             if previous.is_some_and(|p| p >= ray.id) {
@@ -66,6 +71,12 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
             }
         }
         Ok(Self { centre, rays })
+    }
+
+    /// A projector over rays a [`Projector::new`] accepted before (a device's table, checked
+    /// once when its calibration was loaded), without a second pass over them.
+    pub fn from_checked(centre: Vector3<T>, rays: S) -> Self {
+        Self { centre, rays }
     }
 
     /// The perspective centre (X_p, Y_p, Z_p), mm.

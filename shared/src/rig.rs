@@ -7,10 +7,10 @@
 //! agrees with the host's f64 path to well under a micrometre at 2 m.
 
 use crate::camera::{InnerOrientation, PixelGrid};
-use crate::collinearity::{camera_ray_direction, ExteriorOrientation};
+use crate::collinearity::{camera_ray_direction, project_camera_point, ExteriorOrientation};
 use crate::intersection::{closest_approach, intersect_paper, Intersection};
 use crate::projector::{Projector, ProjectorRay, Ray};
-use crate::Result;
+use crate::{Error, Result};
 use nalgebra::{Matrix3, RealField, Vector3};
 
 /// How the two rays are intersected.
@@ -102,6 +102,61 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Rig<T, S> {
         }
     }
 
+    /// Check the rig is a usable calibration (the one validation every reader of a calibration
+    /// uses): every number finite, f and the pixel size positive, a sensor of at least one
+    /// pixel, at least one ray. The rays themselves were checked by [`Projector::new`] (sorted,
+    /// unit to [`crate::projector::UNIT_TOLERANCE`]).
+    pub fn validate(&self) -> Result<()> {
+        let g = &self.grid;
+        let i = &self.inner;
+        let finite = [g.pixel_size, g.origin_col, g.origin_row]
+            .into_iter()
+            .chain([i.f, i.cx, i.cy, i.k1, i.k2, i.k3, i.p1, i.p2])
+            .chain(self.r_cam_world.iter().copied())
+            .chain(self.camera_centre.iter().copied())
+            .all(|v| v.is_finite());
+        if !finite {
+            return Err(Error::NotFinite);
+        }
+        if !(g.pixel_size > T::zero() && i.f > T::zero()) || g.width == 0 || g.height == 0 {
+            return Err(Error::InvalidCalibration);
+        }
+        if self.projector.rays().is_empty() {
+            return Err(Error::InvalidCalibration);
+        }
+        Ok(())
+    }
+
+    /// Eq. (1) through to pixels for a point given relative to the camera centre (world axes,
+    /// mm): its observed pixel position (col, row), distortion included.
+    pub fn pixel_of_centred(&self, point: &Vector3<T>) -> Result<(T, T)> {
+        let cam = self.r_cam_world * point;
+        let refined = project_camera_point(self.inner.f, &cam)?;
+        Ok(self.grid.photo_to_pixel(self.inner.unrefine(refined)?))
+    }
+
+    /// The forward projection of a dot: where ray `id` meets the surface at distance `depth`
+    /// from the camera centre along its viewing axis (camera-system z = −depth), relative to
+    /// the camera centre (world axes, mm).
+    pub fn point_at_depth(&self, id: u16, depth: T) -> Result<Vector3<T>> {
+        let line = self.projector.ray(id)?;
+        let along = self.r_cam_world.row(2);
+        // Camera-system z along the ray: z(λ) = z0 + λ dz.
+        let (z0, dz) = (
+            along.dot(&line.point.transpose()),
+            along.dot(&line.direction.transpose()),
+        );
+        if dz.abs() < crate::lit(1e-12) {
+            return Err(Error::DegenerateGeometry);
+        }
+        Ok(line.at((-depth - z0) / dz))
+    }
+
+    /// [`Rig::point_at_depth`] imaged: the pixel (col, row) of dot `id` on a surface at `depth`.
+    pub fn pixel_at_depth(&self, id: u16, depth: T) -> Result<(T, T)> {
+        self.pixel_of_centred(&self.point_at_depth(id, depth)?)
+    }
+
     /// The world point of dot `id` observed at pixel (col, row), with λ, λp and the miss distance.
     pub fn reconstruct(&self, id: u16, col: T, row: T, method: Method) -> Result<Intersection<T>> {
         let projector = self.projector.ray(id)?;
@@ -112,5 +167,44 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Rig<T, S> {
         };
         hit.point += self.camera_centre;
         Ok(hit)
+    }
+}
+
+impl<S: AsRef<[ProjectorRay<f64>]>> Rig<f64, S> {
+    /// The device's f32 rig, cast as an upload does: centred in f64 first (the projector centre
+    /// is X_p − X0), then every parameter rounded to f32; the camera centre too (the device
+    /// returns camera-centred points and the host adds X0 back in f64). The rays are collected
+    /// into `C` (a `Vec`, or a `heapless::Vec` large enough).
+    pub fn cast<C>(&self) -> Result<Rig<f32, C>>
+    where
+        C: FromIterator<ProjectorRay<f32>> + AsRef<[ProjectorRay<f32>]>,
+    {
+        let c = |v: f64| v as f32;
+        let g = &self.grid;
+        let grid = PixelGrid {
+            pixel_size: c(g.pixel_size),
+            width: g.width,
+            height: g.height,
+            origin_col: c(g.origin_col),
+            origin_row: c(g.origin_row),
+        };
+        let rays = self
+            .projector
+            .rays()
+            .iter()
+            .map(|r| ProjectorRay {
+                id: r.id,
+                direction: r.direction.map(c),
+                offset: r.offset.map(c),
+            })
+            .collect();
+        let projector = Projector::new(self.projector.centre().map(c), rays)?;
+        Ok(Rig::from_centred(
+            grid,
+            self.inner.cast(),
+            self.r_cam_world.map(c),
+            self.camera_centre.map(c),
+            projector,
+        ))
     }
 }

@@ -151,7 +151,6 @@ pub mod torso {
     use deltaz_host::simulate::images::true_rig;
     use deltaz_host::simulate::Scenario;
     use deltaz_host::system::SystemRig;
-    use deltaz_shared::collinearity::project_camera_point;
 
     /// Distance of the wall behind the body from the camera (mm).
     pub const WALL: f64 = 1740.0;
@@ -180,19 +179,15 @@ pub mod torso {
             .iter()
             .enumerate()
             .filter_map(|(k, ray)| {
-                let line = projector.ray(ray.id).ok()?;
-                let (start, dir) = (r * line.point, r * line.direction);
                 // Fixed-point iteration on the depth: the surface is flat enough to converge.
                 let mut d = WALL;
-                let mut p = start;
+                let mut p = rig.point_at_depth(ray.id, d).ok()?;
                 for _ in 0..60 {
-                    p = start + dir * ((-d - start.z) / dir.z);
-                    d = depth(p.x, p.y, ridge);
+                    p = rig.point_at_depth(ray.id, d).ok()?;
+                    let cam = r * p;
+                    d = depth(cam.x, cam.y, ridge);
                 }
-                let refined = project_camera_point(rig.inner().f, &p).ok()?;
-                let (col, row) = rig
-                    .grid()
-                    .photo_to_pixel(rig.inner().unrefine(refined).ok()?);
+                let (col, row) = rig.pixel_of_centred(&p).ok()?;
                 let phase = k as f64 * 2.399;
                 let (col, row) = (col + jitter * phase.cos(), row + jitter * phase.sin());
                 rig.grid().contains(col, row).then_some((ray.id, col, row))

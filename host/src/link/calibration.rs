@@ -7,10 +7,10 @@ use deltaz_shared::protocol::calibration::{
 use deltaz_shared::rig::{Method, Rig};
 use nalgebra::Vector3;
 
-/// The calibration blob of `rig` for the device: grid, inner orientation and R cast to f32, the
-/// camera centre kept in f64, the projector centre X_p − X0 (computed in f64 by the rig) cast to
-/// f32, the rays sorted by id (as the rig holds them) with offsets only for a non-central model.
-/// `None` when there are more than 65535 rays. No identification of unlabelled dots (see
+/// The calibration blob of `rig` for the device: the rig cast to f32 ([`Rig::cast`]: the
+/// projector centre X_p − X0 computed in f64 first), the camera centre kept in f64, the rays
+/// sorted by id (as the rig holds them) with offsets only for a non-central model. `None` when
+/// there are more than 65535 rays. No identification of unlabelled dots (see
 /// [`calibration_blob_identifying`]).
 pub fn calibration_blob<S: AsRef<[ProjectorRay<f64>]>>(
     rig: &Rig<f64, S>,
@@ -27,35 +27,26 @@ pub fn calibration_blob_identifying<S: AsRef<[ProjectorRay<f64>]>>(
     method: Method,
     identification: Option<IdentifyParams>,
 ) -> Option<Vec<u8>> {
-    let f32s = |v: &Vector3<f64>| v.map(|c| c as f32).into();
-    let projector = rig.projector_centred();
+    let device: Rig<f32, Vec<ProjectorRay<f32>>> = rig.cast().ok()?;
+    let projector = device.projector_centred();
     let rays = projector.rays();
-    let g = rig.grid();
+    let r = device.r_cam_world();
     let header = CalibrationHeader {
         format: CALIBRATION_FORMAT,
         fingerprint,
         method: method.into(),
-        grid: deltaz_shared::camera::PixelGrid {
-            pixel_size: g.pixel_size as f32,
-            width: g.width,
-            height: g.height,
-            origin_col: g.origin_col as f32,
-            origin_row: g.origin_row as f32,
-        },
-        inner: rig.inner().cast(),
-        r_cam_world: {
-            let r = rig.r_cam_world();
-            std::array::from_fn(|i| r[(i / 3, i % 3)] as f32)
-        },
+        grid: *device.grid(),
+        inner: *device.inner(),
+        r_cam_world: std::array::from_fn(|i| r[(i / 3, i % 3)]),
         camera_centre: rig.camera_centre().into(),
-        projector_centre: f32s(&projector.centre()),
+        projector_centre: projector.centre().into(),
         identification,
         rays: u16::try_from(rays.len()).ok()?,
     };
     let wire = rays.iter().map(|r| WireRay {
         id: r.id,
-        direction: f32s(&r.direction),
-        offset: (r.offset != Vector3::zeros()).then(|| f32s(&r.offset)),
+        direction: r.direction.into(),
+        offset: (r.offset != Vector3::zeros()).then(|| r.offset.into()),
     });
     let mut buf = vec![0u8; 256 + 32 * rays.len()];
     let len = encode_calibration(&header, wire, &mut buf).ok()?;

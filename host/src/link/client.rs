@@ -8,20 +8,26 @@ use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::frame::CRC;
 use deltaz_shared::protocol::{
     decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, Dot,
-    ErrorCode, PointResult, PointStatus, Request, RequestBody, ResponseBody, WireError, CHUNK_SIZE,
-    MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
+    ErrorCode, PointResult, PointStatus, Request, RequestBody, Response, ResponseBody, WireError,
+    CHUNK_SIZE, MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
 };
 use deltaz_shared::rig::{Method, Rig};
 use nalgebra::Vector3;
 use std::io;
 use std::time::{Duration, Instant};
 
-/// How long a request waits for its response by default.
+/// How long a request waits for its response by default (per try).
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(3);
 /// Upload attempts when the device reports a CRC failure of the whole blob.
 const UPLOAD_ATTEMPTS: usize = 3;
-/// Sends of one request the device could not read (damaged on the line).
-const SEND_ATTEMPTS: usize = 3;
+/// Sends of one request whose answer is missing or damaged (requests are idempotent: Compute
+/// and Identify compute again, a chunk is taken again at its offset, Info and Stats read).
+pub const TRIES: usize = 4;
+/// Requests in flight by default when a stream is pipelined ([`Device::with_window`]).
+pub const DEFAULT_WINDOW: usize = 4;
+/// After line noise or a damaged answer, how long the oldest request in flight still waits for
+/// its answer before it is sent again (at most the timeout).
+const GRACE: Duration = Duration::from_millis(200);
 
 /// What can go wrong talking to a device.
 #[derive(Debug)]
@@ -33,8 +39,19 @@ pub enum DeviceError {
     Absent(String),
     /// The port is in use by another program.
     Busy(String),
-    /// No response within the timeout.
+    /// No response within the timeout, nothing heard at all, after every try.
     Timeout(Duration),
+    /// No valid answer after every try, but the line carried something.
+    NoValidAnswer {
+        /// Sends of the request.
+        tries: usize,
+        /// Frames that did not decode (damaged on the line).
+        damaged: u64,
+        /// The device's answers to frames it could not read (seq 0).
+        unreadable: u64,
+        /// Answers to other requests (stale, or duplicated).
+        stale: u64,
+    },
     /// The device answered with an error.
     Device(ErrorCode),
     /// The device answered with another kind of response than the request asks for.
@@ -63,6 +80,17 @@ impl std::fmt::Display for DeviceError {
             DeviceError::Absent(p) => write!(f, "no device at {p}"),
             DeviceError::Busy(p) => write!(f, "{p} is busy (in use by another program)"),
             DeviceError::Timeout(t) => write!(f, "the device did not answer within {t:?}"),
+            DeviceError::NoValidAnswer {
+                tries,
+                damaged,
+                unreadable,
+                stale,
+            } => write!(
+                f,
+                "no valid answer after {tries} tries: the line carried {damaged} damaged \
+                 frames, {unreadable} answers to frames the device could not read and \
+                 {stale} answers to other requests"
+            ),
             DeviceError::Device(code) => write!(f, "the device refused: {code}"),
             DeviceError::Unexpected(what) => write!(f, "the device did not answer with {what}"),
             DeviceError::Protocol(v) => write!(
@@ -111,10 +139,38 @@ pub struct Device<T> {
     transport: T,
     seq: u32,
     timeout: Duration,
+    window: usize,
+    drained: bool,
     pending: Vec<u8>,
     calibration: Option<CalibrationSummary>,
     sent: u64,
     received: u64,
+    line: LineCounts,
+}
+
+/// What the client saw on the line besides the answers it waited for.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LineCounts {
+    /// Requests sent again (their answer was missing or damaged).
+    pub resent: u64,
+    /// Frames that did not decode.
+    pub damaged: u64,
+    /// The device's answers to frames it could not read (seq 0).
+    pub unreadable: u64,
+    /// Answers with a seq not in flight (stale, duplicated).
+    pub stale: u64,
+}
+
+/// A request in flight.
+struct InFlight {
+    /// Its place in the caller's list.
+    index: usize,
+    seq: u32,
+    frame: Vec<u8>,
+    tries: usize,
+    /// When it was (last) sent, as a count of sends: the device answers in this order.
+    order: u64,
+    deadline: Instant,
 }
 
 impl Device<InProcess> {
@@ -129,13 +185,27 @@ impl<T: Transport> Device<T> {
     pub fn new(transport: T) -> Self {
         Self {
             transport,
-            seq: 0,
+            seq: fresh_seq(),
             timeout: DEFAULT_TIMEOUT,
+            window: DEFAULT_WINDOW,
+            drained: false,
             pending: Vec::new(),
             calibration: None,
             sent: 0,
             received: 0,
+            line: LineCounts::default(),
         }
+    }
+
+    /// The same client keeping up to `window` requests in flight in a stream (at least 1).
+    pub fn with_window(mut self, window: usize) -> Self {
+        self.window = window.max(1);
+        self
+    }
+
+    /// What the line carried besides the expected answers, so far.
+    pub fn line_counts(&self) -> LineCounts {
+        self.line
     }
 
     /// The same client with another response timeout.
@@ -238,6 +308,9 @@ impl<T: Transport> Device<T> {
             }
             match self.call(RequestBody::UploadCommit) {
                 Ok(ResponseBody::Committed { .. }) => break,
+                // A commit sent again after its answer was lost finds the upload done: the
+                // fingerprint read back below tells whether it committed.
+                Err(DeviceError::Device(ErrorCode::NoUpload)) => break,
                 Err(DeviceError::Device(ErrorCode::UploadCrc)) if attempt < UPLOAD_ATTEMPTS => {}
                 Ok(_) => return Err(DeviceError::Unexpected("Committed")),
                 Err(e) => return Err(e),
@@ -249,38 +322,62 @@ impl<T: Transport> Device<T> {
     /// The 3D points of one or more camera frames' centroids `(ray id, col, row)` (pixels), in
     /// order; a centroid without a point gets its status. Split into batches the device takes,
     /// each sent sorted by ray id (the compact form of the ids, see
-    /// `deltaz_shared::protocol::delta`).
-    pub fn compute(
+    /// `deltaz_shared::protocol::delta`), pipelined.
+    pub fn compute(&mut self, centroids: &[(u16, f64, f64)]) -> Result<Vec<PointOutcome>> {
+        let batches: Vec<&[(u16, f64, f64)]> = centroids.chunks(MAX_BATCH).collect();
+        Ok(self.compute_frames(&batches)?.concat())
+    }
+
+    /// [`Device::compute`] of several frames (each at most [`MAX_BATCH`] centroids), keeping up
+    /// to the window ([`Device::with_window`]) of requests in flight: the device receives the
+    /// next frame while it sends the answer to the previous one.
+    pub fn compute_frames<F: AsRef<[(u16, f64, f64)]>>(
         &mut self,
-        centroids: &[(u16, f64, f64)],
-    ) -> Result<Vec<std::result::Result<WorldPoint, PointStatus>>> {
+        frames: &[F],
+    ) -> Result<Vec<Vec<PointOutcome>>> {
         let calibration = self.calibration()?;
-        let mut out = Vec::with_capacity(centroids.len());
-        for (b, batch) in centroids.chunks(MAX_BATCH).enumerate() {
-            let mut order: Vec<usize> = (0..batch.len()).collect();
-            order.sort_by_key(|&i| batch[i].0);
+        let mut orders = Vec::with_capacity(frames.len());
+        let mut requests = Vec::with_capacity(frames.len());
+        let mut first = 0;
+        for frame in frames {
+            let frame = frame.as_ref();
+            if frame.len() > MAX_BATCH {
+                return Err(DeviceError::Device(ErrorCode::Frame(WireError::BufferFull)));
+            }
+            let mut order: Vec<usize> = (0..frame.len()).collect();
+            order.sort_by_key(|&i| frame[i].0);
             let mut wire = heapless::Vec::new();
             for &i in &order {
-                let (id, col, row) = batch[i];
+                let (id, col, row) = frame[i];
                 let c = Centroid::from_pixel(id, col, row, calibration.centroid_bits)
-                    .ok_or(DeviceError::Centroid(b * MAX_BATCH + i))?;
+                    .ok_or(DeviceError::Centroid(first + i))?;
                 wire.push(c)
-                    .unwrap_or_else(|_| unreachable!("batches of MAX_BATCH"));
+                    .unwrap_or_else(|_| unreachable!("at most MAX_BATCH per frame"));
             }
-            match self.call(RequestBody::Compute { centroids: wire })? {
-                ResponseBody::Points {
-                    fingerprint,
-                    points,
-                } if points.len() == batch.len() => {
-                    self.check_fingerprint(&calibration, fingerprint)?;
-                    let mut results = vec![Err(PointStatus::Degenerate); batch.len()];
-                    for (&i, p) in order.iter().zip(&points) {
-                        results[i] = world_point(&calibration, p);
-                    }
-                    out.extend(results);
+            first += frame.len();
+            orders.push(order);
+            requests.push(RequestBody::Compute { centroids: wire });
+        }
+        let mut out: Vec<Vec<PointOutcome>> = Vec::with_capacity(frames.len());
+        out.resize_with(frames.len(), Vec::new);
+        let mut fingerprints = Vec::new();
+        self.pipeline(requests, |k, body| match body {
+            ResponseBody::Points {
+                fingerprint,
+                points,
+            } if points.len() == orders[k].len() => {
+                fingerprints.push(fingerprint);
+                let mut results = vec![Err(PointStatus::Degenerate); points.len()];
+                for (&i, p) in orders[k].iter().zip(&points) {
+                    results[i] = world_point(&calibration, p);
                 }
-                _ => return Err(DeviceError::Unexpected("Points")),
+                out[k] = results;
+                Ok(())
             }
+            _ => Err(DeviceError::Unexpected("Points")),
+        })?;
+        for fingerprint in fingerprints {
+            self.check_fingerprint(&calibration, fingerprint)?;
         }
         Ok(out)
     }
@@ -290,34 +387,55 @@ impl<T: Transport> Device<T> {
     /// and computes its point. The calibration must carry identification parameters
     /// ([`Device::upload_identifying`]). At most [`MAX_BATCH`] dots: a frame is one batch, since
     /// two dots claiming one ray are found only within a batch.
-    pub fn identify(
+    pub fn identify(&mut self, dots: &[(f64, f64)]) -> Result<Vec<(u16, PointOutcome)>> {
+        Ok(self.identify_frames(&[dots])?.concat())
+    }
+
+    /// [`Device::identify`] of several frames, pipelined as in [`Device::compute_frames`].
+    pub fn identify_frames<F: AsRef<[(f64, f64)]>>(
         &mut self,
-        dots: &[(f64, f64)],
-    ) -> Result<Vec<(u16, std::result::Result<WorldPoint, PointStatus>)>> {
+        frames: &[F],
+    ) -> Result<Vec<Vec<(u16, PointOutcome)>>> {
         let calibration = self.calibration()?;
-        if dots.len() > MAX_BATCH {
-            return Err(DeviceError::Device(ErrorCode::Frame(WireError::BufferFull)));
+        let mut requests = Vec::with_capacity(frames.len());
+        let mut first = 0;
+        for frame in frames {
+            let frame = frame.as_ref();
+            if frame.len() > MAX_BATCH {
+                return Err(DeviceError::Device(ErrorCode::Frame(WireError::BufferFull)));
+            }
+            let mut wire = heapless::Vec::new();
+            for (i, &(col, row)) in frame.iter().enumerate() {
+                let dot = Dot::from_pixel(col, row, calibration.centroid_bits)
+                    .ok_or(DeviceError::Centroid(first + i))?;
+                wire.push(dot)
+                    .unwrap_or_else(|_| unreachable!("at most MAX_BATCH dots"));
+            }
+            first += frame.len();
+            requests.push(RequestBody::Identify { dots: wire });
         }
-        let mut wire = heapless::Vec::new();
-        for (i, &(col, row)) in dots.iter().enumerate() {
-            let dot = Dot::from_pixel(col, row, calibration.centroid_bits)
-                .ok_or(DeviceError::Centroid(i))?;
-            wire.push(dot)
-                .unwrap_or_else(|_| unreachable!("at most MAX_BATCH dots"));
-        }
-        match self.call(RequestBody::Identify { dots: wire })? {
+        let lens: Vec<usize> = frames.iter().map(|f| f.as_ref().len()).collect();
+        let mut out: Vec<Vec<(u16, PointOutcome)>> = Vec::with_capacity(frames.len());
+        out.resize_with(frames.len(), Vec::new);
+        let mut fingerprints = Vec::new();
+        self.pipeline(requests, |k, body| match body {
             ResponseBody::Identified {
                 fingerprint,
                 points,
-            } if points.len() == dots.len() => {
-                self.check_fingerprint(&calibration, fingerprint)?;
-                Ok(points
+            } if points.len() == lens[k] => {
+                fingerprints.push(fingerprint);
+                out[k] = points
                     .iter()
                     .map(|p| (p.id, world_point(&calibration, &p.result)))
-                    .collect())
+                    .collect();
+                Ok(())
             }
             _ => Err(DeviceError::Unexpected("Identified")),
+        })?;
+        for fingerprint in fingerprints {
+            self.check_fingerprint(&calibration, fingerprint)?;
         }
+        Ok(out)
     }
 
     /// The active calibration, asked for when not known yet.
@@ -361,63 +479,189 @@ impl<T: Transport> Device<T> {
         }
     }
 
-    /// Send one request and wait for the response with its seq. A request the device could not
-    /// read (a frame damaged on the line: COBS, length or CRC) was not executed, so it is sent
-    /// again, up to [`SEND_ATTEMPTS`] times.
+    /// Send one request and wait for its answer (see [`Device::pipeline`]).
     fn call(&mut self, body: RequestBody) -> Result<ResponseBody> {
-        self.seq = self.seq.wrapping_add(1).max(1);
-        let request = Request {
-            seq: self.seq,
-            body,
-        };
-        // A leading delimiter ends any partial frame the device holds.
-        let mut buf = vec![0u8; MAX_FRAME + 1];
-        let len = encode_frame(&request, &mut buf[1..])
-            .map_err(|e| DeviceError::Device(ErrorCode::Frame(e)))?
-            .len();
-        let frame = &buf[..=len];
-        let mut attempt = 1;
+        let mut response = None;
+        self.pipeline([body], |_, body| {
+            response = Some(body);
+            Ok(())
+        })?;
+        response.ok_or(DeviceError::Unexpected("an answer"))
+    }
+
+    /// Send `requests`, keeping up to the window of them in flight, and hand each answer with
+    /// the request's index to `answered` (in the order they arrive). Each request gets a fresh
+    /// seq; answers with another seq are ignored (stale answers of an earlier run, duplicates,
+    /// and the device's seq-0 answers to frames it could not read, which say only that *some*
+    /// frame was damaged). A request is sent again, with its seq, when its answer is overdue:
+    /// after the timeout, when a later request was answered (the device answers in order), or
+    /// shortly after a damaged frame or a seq-0 answer; after [`TRIES`] sends it fails, saying
+    /// what the line carried. An error answer fails the whole call.
+    fn pipeline(
+        &mut self,
+        requests: impl IntoIterator<Item = RequestBody>,
+        mut answered: impl FnMut(usize, ResponseBody) -> Result<()>,
+    ) -> Result<()> {
+        if !std::mem::replace(&mut self.drained, true) {
+            self.drain()?;
+        }
+        let seen_before = self.line;
+        let mut requests = requests.into_iter().enumerate();
+        let mut flight: Vec<InFlight> = Vec::new();
+        let mut order = 0u64;
+        let grace = GRACE.min(self.timeout);
         loop {
-            match self.exchange(frame) {
-                Err(DeviceError::Device(ErrorCode::Frame(
-                    WireError::BadCrc | WireError::Cobs | WireError::TooShort,
-                ))) if attempt < SEND_ATTEMPTS => attempt += 1,
-                result => return result,
+            while flight.len() < self.window {
+                let Some((index, body)) = requests.next() else {
+                    break;
+                };
+                let seq = self.next_seq();
+                // A leading delimiter ends any partial frame the device holds.
+                let mut frame = vec![0u8; MAX_FRAME + 1];
+                let len = encode_frame(&Request { seq, body }, &mut frame[1..])
+                    .map_err(|e| DeviceError::Device(ErrorCode::Frame(e)))?
+                    .len();
+                frame.truncate(len + 1);
+                self.send(&frame)?;
+                order += 1;
+                flight.push(InFlight {
+                    index,
+                    seq,
+                    frame,
+                    tries: 1,
+                    order,
+                    deadline: Instant::now() + self.timeout,
+                });
+            }
+            let Some(until) = flight.iter().map(|f| f.deadline).min() else {
+                return Ok(());
+            };
+            let now = Instant::now();
+            let oldest = flight.iter().map(|f| f.order).min().unwrap_or(0);
+            match self.next_frame(until)? {
+                Some(Ok(response)) => {
+                    if let Some(k) = flight.iter().position(|f| f.seq == response.seq) {
+                        let done = flight.swap_remove(k);
+                        // The device answers in order: requests sent before this one and
+                        // still unanswered were lost, or their answers were.
+                        for f in flight.iter_mut().filter(|f| f.order < done.order) {
+                            f.deadline = now;
+                        }
+                        answered(done.index, answer(response.body)?)?;
+                    } else if response.seq == 0 {
+                        self.line.unreadable += 1;
+                        shorten(&mut flight, oldest, now + grace);
+                    } else {
+                        self.line.stale += 1;
+                    }
+                }
+                Some(Err(_)) => {
+                    self.line.damaged += 1;
+                    shorten(&mut flight, oldest, now + grace);
+                }
+                None => {}
+            }
+            let now = Instant::now();
+            for f in flight.iter_mut().filter(|f| f.deadline <= now) {
+                if f.tries >= TRIES {
+                    let seen = LineCounts {
+                        resent: 0,
+                        damaged: self.line.damaged - seen_before.damaged,
+                        unreadable: self.line.unreadable - seen_before.unreadable,
+                        stale: self.line.stale - seen_before.stale,
+                    };
+                    return Err(if seen == LineCounts::default() {
+                        DeviceError::Timeout(self.timeout)
+                    } else {
+                        DeviceError::NoValidAnswer {
+                            tries: TRIES,
+                            damaged: seen.damaged,
+                            unreadable: seen.unreadable,
+                            stale: seen.stale,
+                        }
+                    });
+                }
+                self.transport.send(&f.frame)?;
+                self.sent += f.frame.len() as u64;
+                self.line.resent += 1;
+                order += 1;
+                f.tries += 1;
+                f.order = order;
+                f.deadline = now + self.timeout;
             }
         }
     }
 
-    /// Send a frame and wait for the response with the current seq; frames that do not decode
-    /// or carry another seq (boot text, stale answers) are skipped.
-    fn exchange(&mut self, frame: &[u8]) -> Result<ResponseBody> {
-        self.pending.clear();
+    /// The next seq: never 0 (the device's own for frames it could not read).
+    fn next_seq(&mut self) -> u32 {
+        self.seq = self.seq.wrapping_add(1).max(1);
+        self.seq
+    }
+
+    fn send(&mut self, frame: &[u8]) -> Result<()> {
         self.transport.send(frame)?;
         self.sent += frame.len() as u64;
-        let deadline = Instant::now() + self.timeout;
+        Ok(())
+    }
+
+    /// Drop whatever the line holds from before this session (a stale answer of an earlier,
+    /// killed run, boot text): read until it stays quiet for a moment.
+    fn drain(&mut self) -> Result<()> {
+        self.pending.clear();
+        let mut chunk = [0u8; 4096];
+        let quiet = Duration::from_millis(20).min(self.timeout);
+        for _ in 0..1024 {
+            let n = self.transport.recv(&mut chunk, quiet)?;
+            self.received += n as u64;
+            if n == 0 {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// The next complete frame decoded (`Err` when damaged), or `None` when none completes by
+    /// `deadline`. Empty frames (idle delimiters) are skipped.
+    fn next_frame(
+        &mut self,
+        deadline: Instant,
+    ) -> Result<Option<std::result::Result<Response, WireError>>> {
         loop {
             while let Some(end) = self.pending.iter().position(|&b| b == 0) {
                 let mut frame: Vec<u8> = self.pending.drain(..=end).collect();
                 frame.pop();
-                if frame.is_empty() {
-                    continue;
-                }
-                match decode_response(&mut frame) {
-                    Ok(r) if r.seq == self.seq => return answer(r.body),
-                    // The device could not read a request: ours, as we wait for no other.
-                    Ok(r) if r.seq == 0 => return answer(r.body),
-                    _ => {}
+                if !frame.is_empty() {
+                    return Ok(Some(decode_response(&mut frame)));
                 }
             }
             let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
             let mut chunk = [0u8; 4096];
             let n = self.transport.recv(&mut chunk, left)?;
             self.received += n as u64;
             self.pending.extend_from_slice(&chunk[..n]);
-            if n == 0 && Instant::now() >= deadline {
-                return Err(DeviceError::Timeout(self.timeout));
-            }
         }
     }
+}
+
+/// A point from the device, or the status of a centroid without one.
+pub type PointOutcome = std::result::Result<WorldPoint, PointStatus>;
+
+/// Let the request sent as `order` wait no later than `until`.
+fn shorten(flight: &mut [InFlight], order: u64, until: Instant) {
+    for f in flight.iter_mut().filter(|f| f.order == order) {
+        f.deadline = f.deadline.min(until);
+    }
+}
+
+/// A seq no earlier run is likely to have used: from the clock and the process id.
+fn fresh_seq() -> u32 {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    now.subsec_nanos() ^ (now.as_secs() as u32).rotate_left(7) ^ std::process::id().rotate_left(16)
 }
 
 /// A result from the device in world coordinates: the camera centre (f64) added back.

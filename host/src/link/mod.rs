@@ -11,7 +11,10 @@ mod qemu;
 mod serial;
 
 pub use calibration::{calibration_blob, calibration_blob_identifying};
-pub use client::{Device, DeviceError, WorldPoint, DEFAULT_TIMEOUT};
+pub use client::{
+    Device, DeviceError, LineCounts, PointOutcome, WorldPoint, DEFAULT_TIMEOUT, DEFAULT_WINDOW,
+    TRIES,
+};
 pub use in_process::{InProcess, InProcessFlash};
 pub use qemu::Qemu;
 pub use serial::{list_ports, Serial};

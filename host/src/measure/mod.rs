@@ -277,10 +277,10 @@ pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> 
     Ok(measured)
 }
 
-/// The host's identifier: up to 4096 rays, 16384 grid cells, 65536 cell entries (a 12 MP image
+/// The host's identifier: up to 4096 rays, 16384 grid cells, 65535 cell entries (a 12 MP image
 /// in 32-pixel cells). It is about 0.6 MB and [`Identifier::new`] builds it on the stack: build
 /// it on the main thread or on one with a large stack, then box it.
-pub type HostIdentifier = Identifier<f64, 4096, 16384, 65536>;
+pub type HostIdentifier = Identifier<f64, 4096, 16384, 65535>;
 
 /// Observations of measured images, and a line for every dot that identification left out.
 #[derive(Debug, Clone, PartialEq, Default)]

@@ -49,6 +49,12 @@ fn info_and_link_errors() {
         info.contains("protocol 2") && info.contains("no calibration"),
         "{info}"
     );
+    let out = deltaz(&["device", "info", "--json"]);
+    assert!(out.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    assert_eq!(json["protocol"], 2);
+    assert_eq!(json["ray_capacity"], 512);
+    assert!(json["calibration"].is_null(), "{json}");
     let absent = err(&["device", "info", "--port", "/dev/deltaz-none"]);
     assert!(absent.contains("no device at /dev/deltaz-none"), "{absent}");
     let both = err(&["device", "info", "--port", "/dev/x", "--qemu=/x.elf"]);
@@ -102,6 +108,32 @@ fn stream_matches_reconstruct() {
         stream.contains("points/s") && stream.contains("0 without a point"),
         "{stream}"
     );
+    // --json: one object on stdout with the stream's counts and the device's statistics.
+    let out = deltaz(&[
+        "device",
+        "stream",
+        "--system",
+        &p("system.json"),
+        "--simulate",
+        "6",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    assert_eq!(json["frames"], 6);
+    let n = json["points"].as_u64().unwrap() + json["without_point"].as_u64().unwrap();
+    assert!(n > 1000, "{json}");
+    assert_eq!(json["stats"]["points"].as_u64(), Some(n), "{json}");
+    assert_eq!(json["stats"]["bad_frames"], 0);
+    assert_eq!(
+        json["stats"]["stack_peak_bytes"], 0,
+        "the in-process device measures none"
+    );
+    assert_eq!(json["line"]["resent"], 0);
     ok(&[
         "reconstruct",
         "--system",

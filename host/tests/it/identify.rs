@@ -6,10 +6,9 @@ use deltaz_host::measure::render::{Background, Scene, Spot};
 use deltaz_host::measure::{measure, MeasureParams};
 use deltaz_host::simulate::images::true_rig;
 use deltaz_host::simulate::{true_camera, Scenario};
-use deltaz_shared::camera::PixelGrid;
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
-use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::projector::ProjectorRay;
 use deltaz_shared::rig::Rig;
 use nalgebra::{Vector2, Vector3};
 
@@ -135,34 +134,7 @@ type Device = Identifier<f32, 512, 2048, 4096>;
 
 /// The rig in f32 as the device holds it (centred on the camera, cast from the host's f64).
 fn device_rig(rig: &HostRig) -> Rig<f32, Vec<ProjectorRay<f32>>> {
-    let c = |v: f64| v as f32;
-    let v = |x: Vector3<f64>| x.map(c);
-    let g = rig.grid();
-    let grid = PixelGrid {
-        pixel_size: c(g.pixel_size),
-        width: g.width,
-        height: g.height,
-        origin_col: c(g.origin_col),
-        origin_row: c(g.origin_row),
-    };
-    let projector = rig.projector_centred();
-    let rays = projector
-        .rays()
-        .iter()
-        .map(|r| ProjectorRay {
-            id: r.id,
-            direction: v(r.direction).normalize(),
-            offset: v(r.offset),
-        })
-        .collect();
-    let projector = Projector::new(v(projector.centre()), rays).unwrap();
-    Rig::from_centred(
-        grid,
-        rig.inner().cast::<f32>(),
-        rig.r_cam_world().map(c),
-        v(rig.camera_centre()),
-        projector,
-    )
+    rig.cast().unwrap()
 }
 
 /// The bar: no wrong assignment, every other dot reported, ≥ 99 % identified.

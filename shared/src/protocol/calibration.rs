@@ -115,29 +115,66 @@ pub fn encode_calibration(
     Ok(len)
 }
 
+/// The longest encoded [`WireRay`]: a 3-byte id varint, the direction, the offset's tag and
+/// the offset.
+pub const MAX_WIRE_RAY: usize = 3 + 12 + 1 + 12;
+/// Bytes read at once for the header (longer than its longest encoding, 160 bytes).
+const HEADER_WINDOW: usize = 192;
+
 /// Read a blob: returns the header after handing every ray, in order, to `take_ray` (which may
 /// refuse one, for example when its table is full). Fails on another format, a short or long
 /// blob, or a refused ray.
 pub fn decode_calibration(
     blob: &[u8],
+    take_ray: impl FnMut(WireRay) -> bool,
+) -> Result<CalibrationHeader, WireError> {
+    decode_calibration_from(
+        blob.len(),
+        |offset, out: &mut [u8]| {
+            out.copy_from_slice(blob.get(offset..offset + out.len()).ok_or(())?);
+            Ok::<(), ()>(())
+        },
+        take_ray,
+    )
+}
+
+/// [`decode_calibration`] of a blob of `len` bytes that `read(offset, out)` fetches piecewise
+/// (a blob in flash: no copy of it in RAM, only a window of [`HEADER_WINDOW`] bytes).
+pub fn decode_calibration_from<E>(
+    len: usize,
+    mut read: impl FnMut(usize, &mut [u8]) -> Result<(), E>,
     mut take_ray: impl FnMut(WireRay) -> bool,
 ) -> Result<CalibrationHeader, WireError> {
-    let (header, mut rest) =
-        postcard::take_from_bytes::<CalibrationHeader>(blob).map_err(|_| WireError::Malformed)?;
+    let mut window = [0u8; HEADER_WINDOW];
+    let mut at = 0;
+    let header: CalibrationHeader = next_item(len, &mut at, &mut read, &mut window)?;
     if header.format != CALIBRATION_FORMAT {
         return Err(WireError::UnknownMessage);
     }
     for _ in 0..header.rays {
-        let (ray, tail) =
-            postcard::take_from_bytes::<WireRay>(rest).map_err(|_| WireError::Malformed)?;
+        let ray: WireRay = next_item(len, &mut at, &mut read, &mut window[..MAX_WIRE_RAY])?;
         if !take_ray(ray) {
             return Err(WireError::Malformed);
         }
-        rest = tail;
     }
-    if rest.is_empty() {
+    if at == len {
         Ok(header)
     } else {
         Err(WireError::Malformed)
     }
+}
+
+/// The item at `*at` of a blob of `len` bytes, read into `window`; `*at` moves past it.
+fn next_item<T: for<'de> Deserialize<'de>, E>(
+    len: usize,
+    at: &mut usize,
+    read: &mut impl FnMut(usize, &mut [u8]) -> Result<(), E>,
+    window: &mut [u8],
+) -> Result<T, WireError> {
+    let n = len.saturating_sub(*at).min(window.len());
+    let window = &mut window[..n];
+    read(*at, window).map_err(|_| WireError::Malformed)?;
+    let (item, rest) = postcard::take_from_bytes::<T>(window).map_err(|_| WireError::Malformed)?;
+    *at += n - rest.len();
+    Ok(item)
 }

@@ -5,6 +5,7 @@ use super::delta::Keyed;
 use crate::Error;
 use nalgebra::{RealField, Vector3};
 use serde::{de::Error as _, Deserialize, Deserializer, Serialize, Serializer};
+use simba::scalar::SupersetOf;
 
 /// Fraction bits of the centroid fixed point for a `width` × `height` sensor: the most (up to 8)
 /// such that (max(width, height) + 1) · 2^bits still fits a u16. 6 bits (1/64 pixel) for the
@@ -46,10 +47,11 @@ impl Dot {
     }
 
     /// The pixel position (col, row) the fixed point stands for, exact in f32 and f64.
-    pub fn pixel<T: RealField + Copy>(&self, bits: u8) -> (T, T) {
-        let scale: T = nalgebra::convert(f64::from(1u32 << bits));
-        let half: T = nalgebra::convert(0.5);
-        let v = |raw: u16| -> T { nalgebra::convert::<f64, T>(f64::from(raw)) / scale - half };
+    /// Computed in f32 (no f64 on the device): raw / 2^bits − ½ has at most 17 significant
+    /// bits, so it is exact and widening it to f64 changes nothing.
+    pub fn pixel<T: RealField + Copy + SupersetOf<f32>>(&self, bits: u8) -> (T, T) {
+        let scale = (1u32 << bits) as f32;
+        let v = |raw: u16| -> T { nalgebra::convert(f32::from(raw) / scale - 0.5) };
         (v(self.col), v(self.row))
     }
 }
@@ -94,7 +96,7 @@ impl Centroid {
     }
 
     /// The pixel position (col, row) the fixed point stands for, exact in f32 and f64.
-    pub fn pixel<T: RealField + Copy>(&self, bits: u8) -> (T, T) {
+    pub fn pixel<T: RealField + Copy + SupersetOf<f32>>(&self, bits: u8) -> (T, T) {
         self.dot().pixel(bits)
     }
 
@@ -142,6 +144,8 @@ pub enum PointStatus {
     Ambiguous,
     /// Identification: another dot of the frame was assigned the same ray (the id is that ray).
     Conflict,
+    /// The centroid lies off the calibration's sensor (more than half a pixel outside).
+    OffSensor,
 }
 
 /// Units per millimetre of a point coordinate: 2¹² (0.244 µm).
@@ -157,12 +161,13 @@ const OUT_OF_RANGE: u8 = 0xF2;
 const UNASSIGNED: u8 = 0xF3;
 const AMBIGUOUS: u8 = 0xF4;
 const CONFLICT: u8 = 0xF5;
+const OFF_SENSOR: u8 = 0xF6;
 
 /// The device's answer for one centroid. On the wire 10 bytes: x, y, z as 24-bit signed little
 /// endian in units of 2⁻¹² mm *relative to the camera centre* (world axes), then one byte that is
 /// the miss distance in units of 2⁻⁸ mm (0 ..= 0xEF, saturating) or a status (0xF0 unknown ray,
-/// 0xF1 degenerate, 0xF2 out of range, 0xF3 unassigned, 0xF4 ambiguous, 0xF5 conflict; the
-/// coordinates are then zero).
+/// 0xF1 degenerate, 0xF2 out of range, 0xF3 unassigned, 0xF4 ambiguous, 0xF5 conflict, 0xF6
+/// off the sensor; the coordinates are then zero).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PointResult {
     /// A point.
@@ -177,20 +182,24 @@ pub enum PointResult {
 }
 
 impl PointResult {
-    /// Quantise a camera-centred point and its miss distance (mm).
-    pub fn from_camera_centred<T: RealField + Copy>(point: &Vector3<T>, miss: T) -> Self {
+    /// Quantise a camera-centred point and its miss distance (mm), in f32 (the device's FPU
+    /// arithmetic: scaling by a power of two is exact, so this equals the f64 quantisation).
+    pub fn from_camera_centred(point: &Vector3<f32>, miss: f32) -> Self {
+        const UNITS: f32 = POINT_UNITS_PER_MM as f32;
+        const LIMIT32: f32 = LIMIT as f32;
         let mut xyz = [0i32; 3];
-        for (out, c) in xyz.iter_mut().zip(point.iter()) {
-            let units = c.to_subset().unwrap_or(f64::NAN) * POINT_UNITS_PER_MM;
+        for (out, &c) in xyz.iter_mut().zip(point.iter()) {
+            let units = c * UNITS;
             // NaN fails the range test.
-            if !(-LIMIT..=LIMIT).contains(&units) {
+            if !(-LIMIT32..=LIMIT32).contains(&units) {
                 return Self::Failed(PointStatus::OutOfRange);
             }
-            *out = libm::round(units) as i32;
+            *out = libm::roundf(units) as i32;
         }
-        let miss = miss.to_subset().unwrap_or(f64::INFINITY) * MISS_UNITS_PER_MM;
-        let miss = if miss < f64::from(MISS_SATURATED) {
-            libm::round(miss) as u8
+        let miss = miss * MISS_UNITS_PER_MM as f32;
+        // NaN saturates.
+        let miss = if miss < f32::from(MISS_SATURATED) {
+            libm::roundf(miss) as u8
         } else {
             MISS_SATURATED
         };
@@ -240,6 +249,7 @@ impl PointResult {
                     PointStatus::Unassigned => UNASSIGNED,
                     PointStatus::Ambiguous => AMBIGUOUS,
                     PointStatus::Conflict => CONFLICT,
+                    PointStatus::OffSensor => OFF_SENSOR,
                 }
             }
         }
@@ -260,6 +270,7 @@ impl PointResult {
             UNASSIGNED => status(PointStatus::Unassigned),
             AMBIGUOUS => status(PointStatus::Ambiguous),
             CONFLICT => status(PointStatus::Conflict),
+            OFF_SENSOR => status(PointStatus::OffSensor),
             _ => None,
         }
     }
@@ -355,6 +366,10 @@ mod tests {
         );
         assert_eq!(
             PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF6]),
+            Some(PointResult::Failed(PointStatus::OffSensor))
+        );
+        assert_eq!(
+            PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF7]),
             None
         );
     }

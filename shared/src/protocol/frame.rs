@@ -8,7 +8,7 @@ use postcard::ser_flavors::{crc::CrcModifier, Cobs, Slice};
 use serde::{Deserialize, Serialize};
 
 /// The CRC used for frames and calibration blobs: CRC-32/ISO-HDLC.
-pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+pub static CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Why a frame could not be read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -57,7 +57,7 @@ pub fn encode_frame<'b, M: Serialize>(
 
 /// Undo COBS in place and check the CRC: the postcard bytes of the message. `frame` holds the
 /// bytes between two delimiters (no 0x00).
-fn unframe(frame: &mut [u8]) -> Result<&[u8], WireError> {
+pub(crate) fn unframe(frame: &mut [u8]) -> Result<&[u8], WireError> {
     if frame.len() > MAX_FRAME {
         return Err(WireError::Oversized);
     }

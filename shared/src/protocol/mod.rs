@@ -39,6 +39,7 @@ pub mod calibration;
 pub mod delta;
 pub mod fixed;
 pub mod frame;
+pub mod stream;
 
 pub use fixed::{centroid_fraction_bits, Centroid, Dot, IdentifiedPoint, PointResult, PointStatus};
 pub use frame::{decode_request, decode_response, encode_frame, WireError};
@@ -54,6 +55,10 @@ pub const CHUNK_SIZE: usize = 1024;
 /// The longest encoded frame either end sends or accepts, delimiter included: a full
 /// `Identified` response (at most 13 bytes per point) plus headers, CRC and COBS overhead.
 pub const MAX_FRAME: usize = 13 * MAX_BATCH + 128;
+/// The longest request frame, delimiter included: a full `Compute` (at most 7 bytes per
+/// centroid: a 3-byte id difference and the 4-byte dot) plus headers, CRC and COBS overhead;
+/// what the device's receive buffer holds.
+pub const MAX_REQUEST: usize = 7 * MAX_BATCH + 64;
 
 /// A request from the host.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

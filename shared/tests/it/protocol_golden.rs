@@ -2,6 +2,7 @@
 //! format shows here (and must come with a new PROTOCOL_VERSION).
 
 use deltaz_shared::protocol::calibration::IntersectionMethod;
+use deltaz_shared::protocol::stream::{tag, view_request, FrameWriter, RequestView};
 use deltaz_shared::protocol::{
     decode_request, decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo,
     DeviceStats, Dot, ErrorCode, IdentifiedPoint, PointResult, PointStatus, Request, RequestBody,
@@ -183,7 +184,93 @@ fn request_frames_are_golden() {
     for (request, golden) in requests().into_iter().zip(REQUEST_FRAMES) {
         let frame = encode_frame(&request, &mut buf).unwrap();
         assert_eq!(frame, &bytes(golden)[..], "{:?}", request.body);
-        assert_eq!(decode_request(&mut body(frame)), Ok(request));
+        assert_eq!(decode_request(&mut body(frame)), Ok(request.clone()));
+        // The device's view in place reads the same request.
+        let mut frame = body(frame);
+        let (seq, view) = view_request(&mut frame).unwrap();
+        assert_eq!((seq, body_of(view)), (request.seq, request.body));
+    }
+}
+
+/// The request a view stands for.
+fn body_of(view: RequestView) -> RequestBody {
+    match view {
+        RequestView::Info => RequestBody::Info,
+        RequestView::UploadBegin { len, crc } => RequestBody::UploadBegin { len, crc },
+        RequestView::UploadChunk { offset, data } => RequestBody::UploadChunk {
+            offset,
+            data: heapless::Vec::from_slice(data).unwrap(),
+        },
+        RequestView::UploadCommit => RequestBody::UploadCommit,
+        RequestView::Compute(batch) => RequestBody::Compute {
+            centroids: batch.iter().collect(),
+        },
+        RequestView::Stats => RequestBody::Stats,
+        RequestView::Reset => RequestBody::Reset,
+        RequestView::Identify(batch) => RequestBody::Identify {
+            dots: batch.iter().collect(),
+        },
+    }
+}
+
+/// The response written field by field, as the device does.
+fn written(response: &Response, buf: &mut [u8]) -> usize {
+    let seq = response.seq;
+    let one = |buf: &mut [u8], tag, payload: &dyn erased::Put| {
+        let mut w = FrameWriter::new(buf, seq, tag).unwrap();
+        payload.put(&mut w);
+        w.finish().unwrap()
+    };
+    match &response.body {
+        ResponseBody::Info(i) => one(buf, tag::INFO, i),
+        ResponseBody::UploadReady { len } => one(buf, tag::UPLOAD_READY, len),
+        ResponseBody::ChunkAccepted { next_offset } => one(buf, tag::CHUNK_ACCEPTED, next_offset),
+        ResponseBody::Committed {
+            fingerprint,
+            generation,
+        } => one(buf, tag::COMMITTED, &(*fingerprint, *generation)),
+        ResponseBody::Stats(s) => one(buf, tag::STATS, s),
+        ResponseBody::Resetting => one(buf, tag::RESETTING, &()),
+        ResponseBody::Error(e) => one(buf, tag::ERROR, e),
+        ResponseBody::Points {
+            fingerprint,
+            points,
+        } => {
+            let mut w = FrameWriter::new(buf, seq, tag::POINTS).unwrap();
+            w.put(fingerprint).unwrap();
+            w.put(&(points.len() as u32)).unwrap();
+            for p in points {
+                w.put(p).unwrap();
+            }
+            w.finish().unwrap()
+        }
+        ResponseBody::Identified {
+            fingerprint,
+            points,
+        } => {
+            let mut w = FrameWriter::new(buf, seq, tag::IDENTIFIED).unwrap();
+            w.put(fingerprint).unwrap();
+            w.put(&(points.len() as u32)).unwrap();
+            for p in points {
+                w.put_identified(p.id, &p.result).unwrap();
+            }
+            w.finish().unwrap()
+        }
+    }
+}
+
+/// A payload of any type behind one reference.
+mod erased {
+    use deltaz_shared::protocol::stream::FrameWriter;
+
+    pub trait Put {
+        fn put(&self, w: &mut FrameWriter);
+    }
+
+    impl<T: serde::Serialize> Put for T {
+        fn put(&self, w: &mut FrameWriter) {
+            w.put(self).unwrap();
+        }
     }
 }
 
@@ -193,6 +280,10 @@ fn response_frames_are_golden() {
     for (response, golden) in responses().into_iter().zip(RESPONSE_FRAMES) {
         let frame = encode_frame(&response, &mut buf).unwrap();
         assert_eq!(frame, &bytes(golden)[..], "{:?}", response.body);
+        // The device writes the same bytes field by field.
+        let mut streamed = [0u8; MAX_FRAME];
+        let len = written(&response, &mut streamed);
+        assert_eq!(&streamed[..len], &bytes(golden)[..], "{:?}", response.body);
         assert_eq!(decode_response(&mut body(frame)), Ok(response));
     }
 }
@@ -205,9 +296,14 @@ fn ray_id_below_zero_is_malformed() {
     // seq 9, Compute, one centroid, id difference −1 from 0, col/row bytes.
     let frame = encode_frame(&(9u32, 4u32, 1u32, -1i32, [1u8, 2, 3, 4]), &mut buf).unwrap();
     let len = frame.len();
+    let mut copy = buf;
     assert_eq!(
         decode_request(&mut buf[..len - 1]),
         Err((9, WireError::Malformed))
+    );
+    assert_eq!(
+        view_request(&mut copy[..len - 1]).err(),
+        Some((9, WireError::Malformed))
     );
     let frame = encode_frame(&(9u32, 4u32, 1u32, 65535i32, [1u8, 2, 3, 4]), &mut buf).unwrap();
     let len = frame.len();

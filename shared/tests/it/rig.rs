@@ -38,37 +38,6 @@ fn pattern() -> Vec<ProjectorRay<f64>> {
     rays
 }
 
-/// The f64 rig cast to f32 after centring in f64 (what an upload does).
-fn to_f32(rig: &Rig<f64, Vec<ProjectorRay<f64>>>) -> Rig<f32, Vec<ProjectorRay<f32>>> {
-    let c = |v: f64| v as f32;
-    let g = rig.grid();
-    let grid = PixelGrid {
-        pixel_size: c(g.pixel_size),
-        width: g.width,
-        height: g.height,
-        origin_col: c(g.origin_col),
-        origin_row: c(g.origin_row),
-    };
-    let p = rig.projector_centred();
-    let rays = p
-        .rays()
-        .iter()
-        .map(|r| ProjectorRay {
-            id: r.id,
-            direction: r.direction.map(c),
-            offset: r.offset.map(c),
-        })
-        .collect();
-    let projector = Projector::new(p.centre().map(c), rays).unwrap();
-    Rig::from_centred(
-        grid,
-        rig.inner().cast(),
-        rig.r_cam_world().map(c),
-        rig.camera_centre().map(c),
-        projector,
-    )
-}
-
 /// The f32 path agrees with f64 within 1 µm over the paper's working volume: camera 1400-1900 mm
 /// from the object, the 440 rays of a 20 x 22 pattern around Table 4's.
 #[test]
@@ -81,7 +50,7 @@ fn f32_agrees_with_f64_within_a_micrometre() {
     };
     let projector = Projector::new(Vector3::from(TABLE3_GLOBAL), pattern()).unwrap();
     let rig64 = Rig::new(DC40, table1(), &exterior, projector.clone());
-    let rig32 = to_f32(&rig64);
+    let rig32: Rig<f32, Vec<ProjectorRay<f32>>> = rig64.cast().unwrap();
     let (mut worst, mut count) = (0.0_f64, 0);
     for distance in [1400.0, 1525.0, 1650.0, 1775.0, 1900.0] {
         let plate_z = exterior.centre.z - distance;
@@ -187,4 +156,77 @@ proptest! {
             Err(e) => prop_assert_eq!(e, Error::DegenerateXZ),
         }
     }
+}
+
+/// The forward projection inverts the reconstruction: the pixel of ray `id` at a depth,
+/// reconstructed, is the point at that depth (camera-system z = −depth), on two rigs.
+#[test]
+fn forward_projection_round_trip() {
+    let paper = Rig::new(
+        DC40,
+        table1(),
+        &plane1(),
+        Projector::new(Vector3::from(TABLE3_GLOBAL), pattern()).unwrap(),
+    );
+    // A second geometry: camera looking down −Z at the origin, projector 300 mm to its left.
+    let other = Rig::new(
+        DC40,
+        InnerOrientation::ideal(25.0),
+        &ExteriorOrientation {
+            kappa: 0.3,
+            phi: -0.05,
+            omega: 0.02,
+            centre: Vector3::new(10.0, -20.0, 1000.0),
+        },
+        Projector::new(Vector3::new(-300.0, 0.0, 1000.0), pattern()).unwrap(),
+    );
+    for (rig, depths) in [(&paper, [1400.0, 1900.0]), (&other, [700.0, 1100.0])] {
+        let r = rig.r_cam_world();
+        for ray in rig.projector_centred().rays().iter().step_by(37) {
+            for depth in depths {
+                let point = rig.point_at_depth(ray.id, depth).unwrap();
+                assert!(((r * point).z + depth).abs() < 1e-9, "camera z is −depth");
+                let (col, row) = rig.pixel_at_depth(ray.id, depth).unwrap();
+                let hit = rig
+                    .reconstruct(ray.id, col, row, Method::ClosestApproach)
+                    .unwrap();
+                let expected = point + rig.camera_centre();
+                assert!((hit.point - expected).norm() < 1e-6, "{}", hit.point);
+            }
+        }
+    }
+    assert_eq!(
+        paper.pixel_at_depth(9999, 1500.0),
+        Err(Error::UnknownRay(9999))
+    );
+}
+
+/// One validation of a calibration: a sensor of no pixels, a zero focal length, no rays or a
+/// NaN are refused; the paper's rig and its f32 cast pass.
+#[test]
+fn validation_of_a_calibration() {
+    let projector = Projector::new(Vector3::from(TABLE3_GLOBAL), pattern()).unwrap();
+    let rig = Rig::new(DC40, table1(), &plane1(), projector.clone());
+    assert_eq!(rig.validate(), Ok(()));
+    let cast: Rig<f32, Vec<ProjectorRay<f32>>> = rig.cast().unwrap();
+    assert_eq!(cast.validate(), Ok(()));
+    let empty_sensor = PixelGrid {
+        width: 0,
+        height: 0,
+        ..DC40
+    };
+    let bad = Rig::new(empty_sensor, table1(), &plane1(), projector.clone());
+    assert_eq!(bad.validate(), Err(Error::InvalidCalibration));
+    let flat = InnerOrientation::ideal(0.0);
+    let bad = Rig::new(DC40, flat, &plane1(), projector.clone());
+    assert_eq!(bad.validate(), Err(Error::InvalidCalibration));
+    let no_rays = Projector::new(Vector3::from(TABLE3_GLOBAL), Vec::new()).unwrap();
+    let bad = Rig::new(DC40, table1(), &plane1(), no_rays);
+    assert_eq!(bad.validate(), Err(Error::InvalidCalibration));
+    let nan = InnerOrientation {
+        k1: f64::NAN,
+        ..table1()
+    };
+    let bad = Rig::new(DC40, nan, &plane1(), projector);
+    assert_eq!(bad.validate(), Err(Error::NotFinite));
 }

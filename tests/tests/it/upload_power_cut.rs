@@ -4,7 +4,7 @@
 
 use deltaz_firmware::smoke::{smoke_pixel, RAY};
 use deltaz_host::link::{calibration_blob, Device, DeviceError, InProcess};
-use deltaz_shared::protocol::ErrorCode;
+use deltaz_shared::protocol::{ErrorCode, CHUNK_SIZE};
 use deltaz_shared::rig::{Method, Rig};
 use deltaz_tests::pattern::pattern_rig;
 use nalgebra::Vector3;
@@ -74,9 +74,16 @@ fn power_cut_at_every_flash_operation_of_an_upload() {
             other => panic!("cut {cut}: fingerprint {other:x}"),
         }
     }
-    // The store's operations: the erase, the blob in pieces of 256 bytes, the header; a cut at
-    // any of them (cuts 0 .. operations − 1 tear one) leaves the old calibration.
-    let operations = 1 + blob.len().div_ceil(256) + 1;
+    // The store's operations: the erase at UploadBegin, one write per chunk as it arrives (the
+    // last chunk's whole write units, then its remainder padded at the commit), the header; a
+    // cut at any of them (cuts 0 .. operations − 1 tear one) leaves the old calibration.
+    let unit = deltaz_host::link::InProcessFlash::WRITE;
+    let last = blob.len() % CHUNK_SIZE;
+    let operations = 1
+        + blob.len() / CHUNK_SIZE
+        + usize::from(last >= unit)
+        + usize::from(!blob.len().is_multiple_of(unit))
+        + 1;
     assert_eq!(
         outcomes,
         (operations, 1),
