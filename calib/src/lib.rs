@@ -11,3 +11,4 @@ pub mod projector_calibration;
 pub mod reconstruct;
 pub mod resection;
 pub mod residual;
+pub mod system_adjustment;

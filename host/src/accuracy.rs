@@ -16,6 +16,9 @@ use crate::reconstruct::{calibration_covariance, covariance, reconstruct};
 use crate::simulate::Simulation;
 use crate::system::{RayCovariances, SystemContent, SystemRig};
 use anyhow::{Context, Result};
+use deltaz_calib::system_adjustment::{
+    adjust_system, CameraPrior, PlateObservations, SystemAdjustment, SystemInput,
+};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::rig::Method;
@@ -238,4 +241,156 @@ fn camera_axes(r: &Matrix3<f64>, cov: &Matrix3<f64>) -> Vector3<f64> {
 fn rms_sigma(variances: &[Vector3<f64>]) -> Vector3<f64> {
     let n = variances.len().max(1) as f64;
     (variances.iter().sum::<Vector3<f64>>() / n).map(f64::sqrt)
+}
+
+/// The camera calibrated on a simulation's target field (bundle adjustment, no snooping): its
+/// inner orientation and the prior (free parameters and their covariance) for the system.
+pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, CameraPrior)> {
+    let options = crate::bundle::CalibrationOptions {
+        snooping: false,
+        ..Default::default()
+    };
+    let init = &sim.camera_init;
+    let problem = crate::camera_calibration::build_problem(
+        std::path::Path::new("camera_obs.csv"),
+        &init.grid(),
+        &init.inner(),
+        &sim.camera_obs,
+        &sim.camera_control,
+        &options,
+    )?;
+    let cal = crate::bundle::calibrate(problem, &options)?;
+    let free = cal.problem.free.inner;
+    let states: Vec<usize> = (0..free.len())
+        .filter_map(|k| cal.problem.state_index_inner(k))
+        .collect();
+    let cov = &cal.solution.camera_covariance;
+    let covariance = nalgebra::DMatrix::from_fn(states.len(), states.len(), |a, b| {
+        cov[(states[a], states[b])]
+    });
+    Ok((cal.problem.inner, CameraPrior { free, covariance }))
+}
+
+/// The whole-system adjustment on a simulation: every plate image but `held_out` resected with
+/// `inner` (those that cannot be are left out and returned), then adjusted with the camera
+/// `prior` (None: inner orientation fixed).
+pub fn adjust_simulation(
+    sim: &Simulation,
+    inner: &InnerOrientation<f64>,
+    prior: Option<CameraPrior>,
+    noncentral: bool,
+    held_out: Option<usize>,
+) -> Result<(SystemAdjustment, Vec<crate::plates::LeftOut>)> {
+    let grid = sim.camera_init.grid();
+    let path = std::path::Path::new("plate_obs.csv");
+    let resected =
+        crate::plates::resect_all(path, &grid, inner, &sim.plate_obs, &sim.plate_control)?;
+    let index: std::collections::HashMap<&str, usize> = sim
+        .plate_control
+        .iter()
+        .enumerate()
+        .map(|(j, c)| (c.point.as_str(), j))
+        .collect();
+    let mut plates = Vec::new();
+    for (image, r) in &resected.results {
+        if held_out.is_some_and(|h| *image == format!("p{}", h + 1)) {
+            continue;
+        }
+        let mine = sim.plate_obs.iter().filter(|o| &o.image == image);
+        let targets = mine
+            .clone()
+            .filter(|o| o.kind == crate::io::observations::PointKind::Control)
+            .map(|o| {
+                (
+                    nalgebra::Vector2::new(o.col, o.row),
+                    index[o.point.as_str()],
+                )
+            })
+            .collect();
+        let dots = mine
+            .filter_map(|o| {
+                o.ray_id()
+                    .map(|id| crate::projector_calibration::DotObservation {
+                        id,
+                        col: o.col,
+                        row: o.row,
+                    })
+            })
+            .collect();
+        plates.push(PlateObservations {
+            image: image.clone(),
+            start: r.exterior,
+            targets,
+            dots,
+        });
+    }
+    let input = SystemInput {
+        grid,
+        inner: *inner,
+        camera: prior,
+        control: &sim.plate_control,
+        plates,
+        noncentral,
+        image_sigma_px: 0.5,
+    };
+    let adjustment = adjust_system(&input)?;
+    Ok((adjustment, resected.left_out))
+}
+
+/// A reconstructed point's error against the truth (camera system) and its covariance shares.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthPoint {
+    /// Error (mm).
+    pub error: Vector3<f64>,
+    /// Covariance from the dot's image noise (mm²).
+    pub image: Matrix3<f64>,
+    /// Covariance from the calibration (mm²).
+    pub calibration: Matrix3<f64>,
+}
+
+/// The dots of plate image `image` (not used in the adjustment) reconstructed in the camera
+/// system and compared with the true points: per dot the error and the covariance (image noise
+/// plus calibration).
+pub fn system_against_truth(
+    sim: &Simulation,
+    adjustment: &SystemAdjustment,
+    image: usize,
+    method: Method,
+) -> Result<Vec<TruthPoint>> {
+    let grid = sim.camera_init.grid();
+    let pose: ExteriorOrientation<f64> = sim.truth.plate.images[image].camera.into();
+    let normal: Vector3<f64> = pose.r_cam_world().column(2).into();
+    let d = -pose.centre.z;
+    let projector = &sim.truth.projector;
+    let centre = Vector3::from(projector.centre_camera);
+    let label = format!("p{}", image + 1);
+    sim.plate_obs
+        .iter()
+        .filter(|o| o.image == label)
+        .filter_map(|o| o.ray_id().map(|id| (id, o)))
+        .filter(|(id, _)| adjustment.rays.iter().any(|r| r.id == *id))
+        .map(|(id, o)| {
+            let ray = projector
+                .rays
+                .iter()
+                .find(|t| t.id == id)
+                .with_context(|| format!("ray {id} not in the truth"))?;
+            let start = centre + Vector3::from(ray.offset_camera);
+            let dir = Vector3::from(ray.camera);
+            let truth = start + dir * ((d - normal.dot(&start)) / normal.dot(&dir));
+            let dot = crate::projector_calibration::DotObservation {
+                id,
+                col: o.col,
+                row: o.row,
+            };
+            let p = adjustment
+                .reconstruct(&grid, &dot, method)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            Ok(TruthPoint {
+                error: p.point - truth,
+                image: p.image,
+                calibration: p.calibration,
+            })
+        })
+        .collect()
 }

@@ -351,6 +351,29 @@ impl Scenario {
         }
     }
 
+    /// The paper's rig with five plates 100 mm apart and a sixth, tilted, held out (index 5),
+    /// the plate control measured to 0.01 mm.
+    pub fn paper_five_plates() -> Self {
+        let mut sc = Scenario::paper();
+        sc.name = "paper-five-plates".into();
+        sc.plate.control_sigma = 0.01;
+        let base = sc.plate.images[0].to_array();
+        sc.plate.images = (0..5)
+            .map(|k| {
+                let mut p = base;
+                p[5] -= 100.0 * k as f64;
+                p[1] += 0.004 * k as f64;
+                PoseParams::from_array(p)
+            })
+            .collect();
+        let mut unseen = base;
+        unseen[1] += 0.05;
+        unseen[3] += 60.0;
+        unseen[5] -= 150.0;
+        sc.plate.images.push(PoseParams::from_array(unseen));
+        sc
+    }
+
     /// The index of the desk rig's held-out plate image.
     pub const DESK_HELD_OUT: usize = 5;
 }

@@ -8,7 +8,6 @@
 use deltaz_host::accuracy::{
     against_truth, calibrate_simulation, paper_experiment, truth_figures, Calibrated, TABLE4_IDS,
 };
-use deltaz_host::io::camera_file::PoseParams;
 use deltaz_host::io::observations::PointKind;
 use deltaz_host::projector_calibration::Model;
 use deltaz_host::simulate::{simulate, true_camera, Scenario, Simulation};
@@ -105,23 +104,8 @@ fn paper_experiment_beats_table7_without_a_fit() {
 
 /// Five plates 100 mm apart and a sixth, tilted, not used in the calibration.
 fn five_plates_and_unseen(sigma_px: f64) -> Scenario {
-    let mut sc = paper_scenario(sigma_px);
-    // A well-measured plate: the control adds little beside the image noise.
-    sc.plate.control_sigma = 0.01;
-    let base = sc.plate.images[0].to_array();
-    sc.plate.images = (0..5)
-        .map(|k| {
-            let mut p = base;
-            p[5] -= 100.0 * k as f64;
-            p[1] += 0.004 * k as f64;
-            PoseParams::from_array(p)
-        })
-        .collect();
-    let mut unseen = base;
-    unseen[1] += 0.05;
-    unseen[3] += 60.0;
-    unseen[5] -= 150.0;
-    sc.plate.images.push(PoseParams::from_array(unseen));
+    let mut sc = Scenario::paper_five_plates();
+    sc.noise.image_sigma_px = sigma_px;
     sc
 }
 

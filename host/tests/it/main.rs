@@ -17,3 +17,4 @@ mod measure;
 mod measure_cli;
 mod projector_cli;
 mod simulate_images;
+mod system;

@@ -1,0 +1,882 @@
+//! The whole-system adjustment: the camera's inner orientation, the exterior orientation of every
+//! plate image, the plate's control coordinates, the projector centre and its rays in one
+//! least-squares problem, with the image noise of each observation group estimated (variance
+//! component estimation) and the covariance of everything a reconstructed point depends on.
+//!
+//! Datum: the camera system of the instrument (x right, y up, z backwards). Each plate image k
+//! has the pose (R_k, X0_k) of the camera in the plate's frame, so the plate surface Z = 0 is the
+//! plane n_k · x = −Z0_k with n_k = R_k e3 in the camera system. A ray is the line
+//!
+//! ```text
+//! x(z) = P + o + (z − P_z) (a, b, 1)      o = (q_x, q_y, 0) for the non-central model, else 0
+//! ```
+//!
+//! and its dot in image k is the camera's image of the line's intersection with that plane.
+//! Observations and weights: plate targets and dots in the image (σ per group, estimated),
+//! control coordinates (their σ), and the camera's inner orientation as a prior with the
+//! covariance of the camera calibration (so `calibrate camera` then `calibrate projector` is one
+//! adjustment, sequentially). Unknowns: [free inner | poses | P | control] (the reduced system)
+//! and per ray 2 (central) or 4 (non-central) parameters, eliminated by the Schur complement as
+//! in the bundle. Variance components: σ_g² ← σ_g² vᵀ_g P_g v_g / r_g, r_g the group's sum of
+//! redundancy numbers, until they settle; the covariances then use the estimated σ.
+//!
+//! Incomplete data: a ray seen on one plate has no redundancy but the central model still
+//! determines it (the centre and one point); the non-central model cannot, and leaves it out.
+
+use crate::input::ControlPoint;
+use crate::projector_calibration::{centre_by_delta_z, DotObservation, PlanePoint};
+use crate::residual::{image_residual, inner_from_array, inner_to_array, INNER};
+use deltaz_shared::camera::{InnerOrientation, PixelGrid};
+use deltaz_shared::collinearity::ExteriorOrientation;
+use deltaz_shared::intersection::{closest_approach, intersect_paper};
+use deltaz_shared::projector::Ray;
+use deltaz_shared::rig::Method;
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
+use std::collections::BTreeMap;
+
+/// One plate image: its resected pose (the start), the targets it sees and its dots.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlateObservations {
+    /// The image's label.
+    pub image: String,
+    /// The camera's pose in the plate frame (from resection).
+    pub start: ExteriorOrientation<f64>,
+    /// Targets: observed pixel and index into the control.
+    pub targets: Vec<(Vector2<f64>, usize)>,
+    /// The projected dots.
+    pub dots: Vec<DotObservation>,
+}
+
+/// The camera calibration as a prior: which inner parameters are free (order f, cx, cy, k1, k2,
+/// k3, p1, p2) and their covariance (mm², in that order).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraPrior {
+    /// Free inner parameters.
+    pub free: [bool; INNER],
+    /// Covariance of the free ones.
+    pub covariance: DMatrix<f64>,
+}
+
+/// What the adjustment needs.
+#[derive(Debug, Clone)]
+pub struct SystemInput<'a> {
+    /// The raster.
+    pub grid: PixelGrid<f64>,
+    /// The calibrated inner orientation.
+    pub inner: InnerOrientation<f64>,
+    /// Its covariance; None holds it fixed.
+    pub camera: Option<CameraPrior>,
+    /// The plate's control points.
+    pub control: &'a [ControlPoint],
+    /// The plate images.
+    pub plates: Vec<PlateObservations>,
+    /// Every ray a free line (4 parameters) instead of a line through the centre (2).
+    pub noncentral: bool,
+    /// Start value of the image noise of both groups (px).
+    pub image_sigma_px: f64,
+}
+
+/// Why the adjustment failed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SystemError {
+    /// Fewer than two plate images.
+    TooFewPlates(usize),
+    /// No ray is seen on two plates, so the centre is undetermined.
+    NoCentre,
+    /// The normal equations are singular.
+    Singular,
+    /// A ray misses a plate or a point falls behind the camera.
+    Geometry(String),
+}
+
+impl std::fmt::Display for SystemError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SystemError::TooFewPlates(n) => {
+                write!(
+                    f,
+                    "the system adjustment needs at least two plate images, got {n}"
+                )
+            }
+            SystemError::NoCentre => {
+                f.write_str("no ray is seen on two plates: the projector centre is undetermined")
+            }
+            SystemError::Singular => f.write_str(
+                "the system's normal equations are singular (weak or insufficient geometry)",
+            ),
+            SystemError::Geometry(why) => f.write_str(why),
+        }
+    }
+}
+
+impl std::error::Error for SystemError {}
+
+/// One adjusted ray.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AdjustedRay {
+    /// Ray id.
+    pub id: u16,
+    /// a, b (slopes dx/dz, dy/dz) and, non-central, q_x, q_y (mm).
+    pub params: Vec<f64>,
+    /// Plates it was seen on.
+    pub planes: usize,
+    /// Covariance of `params`.
+    pub covariance: DMatrix<f64>,
+    /// Covariance of `params` with the core parameters [free inner | P] (rows: params).
+    pub cross: DMatrix<f64>,
+    /// RMS of its dots' image residuals (px).
+    pub rms_px: f64,
+}
+
+impl AdjustedRay {
+    /// The unit direction towards the scene (−z) and the offset from the centre.
+    pub fn line(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let u = Vector3::new(self.params[0], self.params[1], 1.0);
+        let offset = match self.params.len() {
+            4 => Vector3::new(self.params[2], self.params[3], 0.0),
+            _ => Vector3::zeros(),
+        };
+        (-u.normalize(), offset)
+    }
+}
+
+/// The adjusted system.
+#[derive(Debug, Clone)]
+pub struct SystemAdjustment {
+    /// Inner orientation.
+    pub inner: InnerOrientation<f64>,
+    /// Which inner parameters were adjusted (the core's first entries, in this order).
+    pub inner_free: Vec<usize>,
+    /// Plate image poses.
+    pub poses: Vec<ExteriorOrientation<f64>>,
+    /// Projector centre (camera system, mm).
+    pub centre: Vector3<f64>,
+    /// The rays, sorted by id.
+    pub rays: Vec<AdjustedRay>,
+    /// Covariance of the core [free inner | P].
+    pub core_covariance: DMatrix<f64>,
+    /// Estimated image noise of the plate targets (px).
+    pub sigma_targets_px: f64,
+    /// Estimated image noise of the dots (px).
+    pub sigma_dots_px: f64,
+    /// Redundancy of the targets and the dots.
+    pub redundancy: [f64; 2],
+    /// Rays seen on one plate only (determined by the central model, without redundancy).
+    pub single_plane: Vec<u16>,
+    /// Rays left out (seen on one plate, non-central model).
+    pub left_out: Vec<u16>,
+    /// Gauss-Newton iterations over all variance-component rounds.
+    pub iterations: usize,
+}
+
+impl SystemAdjustment {
+    /// σ of the projector centre (mm).
+    pub fn centre_sigma(&self) -> Vector3<f64> {
+        let k = self.inner_free.len();
+        Vector3::from_fn(|a, _| self.core_covariance[(k + a, k + a)].sqrt())
+    }
+
+    /// The covariance of [free inner | P | ray params] for ray `index`.
+    pub fn ray_parameter_covariance(&self, index: usize) -> DMatrix<f64> {
+        let ray = &self.rays[index];
+        let (k, m) = (self.core_covariance.nrows(), ray.params.len());
+        let mut cov = DMatrix::zeros(k + m, k + m);
+        cov.view_mut((0, 0), (k, k))
+            .copy_from(&self.core_covariance);
+        cov.view_mut((k, k), (m, m)).copy_from(&ray.covariance);
+        cov.view_mut((k, 0), (m, k)).copy_from(&ray.cross);
+        cov.view_mut((0, k), (k, m))
+            .copy_from(&ray.cross.transpose());
+        cov
+    }
+}
+
+/// The state: everything the residuals depend on.
+#[derive(Debug, Clone)]
+struct State {
+    inner: [f64; INNER],
+    poses: Vec<ExteriorOrientation<f64>>,
+    centre: Vector3<f64>,
+    control: Vec<Vector3<f64>>,
+    rays: Vec<Vec<f64>>,
+}
+
+/// Index layout of the reduced (global) system.
+struct Layout {
+    inner: Vec<usize>,
+    plates: usize,
+    control: usize,
+}
+
+impl Layout {
+    fn pose(&self, k: usize) -> usize {
+        self.inner.len() + 6 * k
+    }
+    fn centre(&self) -> usize {
+        self.inner.len() + 6 * self.plates
+    }
+    fn point(&self, j: usize) -> usize {
+        self.centre() + 3 + 3 * j
+    }
+    fn size(&self) -> usize {
+        self.point(self.control)
+    }
+}
+
+/// The point where a ray (centre, params) meets plate `pose`'s surface, in the plate frame.
+fn dot_point(
+    pose: &ExteriorOrientation<f64>,
+    centre: &Vector3<f64>,
+    params: &[f64],
+) -> Option<Vector3<f64>> {
+    let r = pose.r_cam_world();
+    let normal: Vector3<f64> = r.column(2).into();
+    let offset = match params.len() {
+        4 => Vector3::new(params[2], params[3], 0.0),
+        _ => Vector3::zeros(),
+    };
+    let base = centre + offset;
+    let u = Vector3::new(params[0], params[1], 1.0);
+    let s = (-pose.centre.z - normal.dot(&base)) / normal.dot(&u);
+    let hit = base + u * s;
+    s.is_finite().then(|| pose.camera_to_world(&hit))
+}
+
+fn pose_array(p: &ExteriorOrientation<f64>) -> [f64; 6] {
+    [p.kappa, p.phi, p.omega, p.centre.x, p.centre.y, p.centre.z]
+}
+
+fn pose_from(a: [f64; 6]) -> ExteriorOrientation<f64> {
+    ExteriorOrientation {
+        kappa: a[0],
+        phi: a[1],
+        omega: a[2],
+        centre: Vector3::new(a[3], a[4], a[5]),
+    }
+}
+
+/// ∂(plate point)/∂[pose (6) | P (3) | ray params (m)] by central differences.
+fn dot_point_jacobian(
+    pose: &ExteriorOrientation<f64>,
+    centre: &Vector3<f64>,
+    params: &[f64],
+) -> Option<DMatrix<f64>> {
+    let m = params.len();
+    let mut jac = DMatrix::zeros(3, 9 + m);
+    let base = pose_array(pose);
+    for k in 0..6 {
+        let h = if k < 3 { 1e-7 } else { 1e-4 };
+        let (mut up, mut down) = (base, base);
+        up[k] += h;
+        down[k] -= h;
+        let d = (dot_point(&pose_from(up), centre, params)?
+            - dot_point(&pose_from(down), centre, params)?)
+            / (2.0 * h);
+        jac.set_column(k, &d);
+    }
+    for k in 0..3 {
+        let mut step = Vector3::zeros();
+        step[k] = 1e-4;
+        let d = (dot_point(pose, &(centre + step), params)?
+            - dot_point(pose, &(centre - step), params)?)
+            / 2e-4;
+        jac.set_column(6 + k, &d);
+    }
+    for k in 0..m {
+        let h = if k < 2 { 1e-7 } else { 1e-4 };
+        let (mut up, mut down) = (params.to_vec(), params.to_vec());
+        up[k] += h;
+        down[k] -= h;
+        let d = (dot_point(pose, centre, &up)? - dot_point(pose, centre, &down)?) / (2.0 * h);
+        jac.set_column(9 + k, &d);
+    }
+    Some(jac)
+}
+
+/// One observation's linearisation: residual (mm), global columns with their 2-vectors, and the
+/// ray's block (2 × m) for dots.
+struct Linear {
+    value: Vector2<f64>,
+    global: Vec<(usize, Vector2<f64>)>,
+    local: Option<(usize, DMatrix<f64>)>,
+    group: usize,
+}
+
+/// The normal equations of the current state, and vᵀPv per group.
+struct Normal {
+    u: DMatrix<f64>,
+    g: DVector<f64>,
+    v: Vec<DMatrix<f64>>,
+    w: Vec<DMatrix<f64>>,
+    g_r: Vec<DVector<f64>>,
+    cost: [f64; 3],
+    rows: Vec<Linear>,
+}
+
+/// The whole adjustment (see the module docs). The start comes from the resected poses and the
+/// ΔZ method on the plane points in the camera system.
+pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemError> {
+    let plates = &input.plates;
+    if plates.len() < 2 {
+        return Err(SystemError::TooFewPlates(plates.len()));
+    }
+    let px = input.grid.pixel_size;
+    // Plane points in the camera system, per ray.
+    let mut by_ray: BTreeMap<u16, Vec<PlanePoint>> = BTreeMap::new();
+    for (k, plate) in plates.iter().enumerate() {
+        let camera = deltaz_shared::collinearity::Camera {
+            grid: input.grid,
+            inner: input.inner,
+            exterior: plate.start,
+        };
+        let plane = crate::projector_calibration::Plane::at_z(0.0);
+        for dot in &plate.dots {
+            let on_plate =
+                crate::projector_calibration::dot_on_plate(&camera, &plane, dot.col, dot.row)
+                    .map_err(|e| {
+                        SystemError::Geometry(format!(
+                            "image {:?}, ray {}: {e}",
+                            plate.image, dot.id
+                        ))
+                    })?;
+            by_ray.entry(dot.id).or_default().push(PlanePoint {
+                plane: k,
+                point: plate.start.world_to_camera(&on_plate),
+                sigma: 1.0,
+            });
+        }
+    }
+    let multi: BTreeMap<u16, Vec<PlanePoint>> = by_ray
+        .iter()
+        .filter(|(_, p)| p.len() >= 2)
+        .map(|(id, p)| (*id, p.clone()))
+        .collect();
+    if multi.is_empty() {
+        return Err(SystemError::NoCentre);
+    }
+    let (centre, _) = centre_by_delta_z(&multi).map_err(|_| SystemError::NoCentre)?;
+    let single_plane: Vec<u16> = by_ray
+        .iter()
+        .filter(|(_, p)| p.len() < 2)
+        .map(|(id, _)| *id)
+        .collect();
+    let left_out: Vec<u16> = if input.noncentral {
+        single_plane.clone()
+    } else {
+        Vec::new()
+    };
+    let ray_ids: Vec<u16> = by_ray
+        .keys()
+        .copied()
+        .filter(|id| !left_out.contains(id))
+        .collect();
+    let ray_index: BTreeMap<u16, usize> =
+        ray_ids.iter().enumerate().map(|(i, id)| (*id, i)).collect();
+    let rays: Vec<Vec<f64>> = ray_ids
+        .iter()
+        .map(|id| start_line(&centre, &by_ray[id], input.noncentral))
+        .collect();
+    let inner_free: Vec<usize> = match &input.camera {
+        Some(prior) => (0..INNER).filter(|k| prior.free[*k]).collect(),
+        None => Vec::new(),
+    };
+    let layout = Layout {
+        inner: inner_free.clone(),
+        plates: plates.len(),
+        control: input.control.len(),
+    };
+    let prior_weight = match &input.camera {
+        Some(prior) => Some(
+            prior
+                .covariance
+                .clone()
+                .try_inverse()
+                .ok_or(SystemError::Singular)?,
+        ),
+        None => None,
+    };
+    let inner0 = inner_to_array(&input.inner);
+    let mut state = State {
+        inner: inner0,
+        poses: plates.iter().map(|p| p.start).collect(),
+        centre,
+        control: input.control.iter().map(|c| c.xyz).collect(),
+        rays,
+    };
+    let mut sigma = [input.image_sigma_px * px; 2];
+    let mut iterations = 0;
+    let mut result = None;
+    for _round in 0..8 {
+        // Gauss-Newton to convergence with the current weights.
+        let mut normal = assemble(
+            input,
+            &layout,
+            &state,
+            &ray_index,
+            &inner0,
+            &prior_weight,
+            &sigma,
+        )?;
+        for _ in 0..30 {
+            iterations += 1;
+            let Reduced { s, b, v_inv } = reduce(&normal)?;
+            let chol = s.clone().cholesky().ok_or(SystemError::Singular)?;
+            let dg = chol.solve(&b);
+            let dr: Vec<DVector<f64>> = (0..normal.v.len())
+                .map(|r| &v_inv[r] * (&normal.g_r[r] - normal.w[r].transpose() * &dg))
+                .collect();
+            let total: f64 = normal.cost.iter().sum();
+            let mut scale = 1.0;
+            let mut accepted = false;
+            while scale > 1e-4 {
+                let trial = step(&state, &layout, &dg, &dr, scale);
+                if let Ok(n) = assemble(
+                    input,
+                    &layout,
+                    &trial,
+                    &ray_index,
+                    &inner0,
+                    &prior_weight,
+                    &sigma,
+                ) {
+                    if n.cost.iter().sum::<f64>() <= total * (1.0 + 1e-12) {
+                        state = trial;
+                        normal = n;
+                        accepted = true;
+                        break;
+                    }
+                }
+                scale /= 2.0;
+            }
+            let decrease = total - normal.cost.iter().sum::<f64>();
+            if !accepted || decrease < 1e-10 * total {
+                break;
+            }
+        }
+        // Redundancy numbers per group, and the covariance.
+        let Reduced { s, v_inv, .. } = reduce(&normal)?;
+        let s_inv = s.cholesky().ok_or(SystemError::Singular)?.inverse();
+        let blocks: Vec<(DMatrix<f64>, DMatrix<f64>)> = (0..v_inv.len())
+            .map(|r| ray_covariance(&normal, &s_inv, &v_inv, r))
+            .collect();
+        let mut red = [0.0; 3];
+        for row in &normal.rows {
+            let weight = 1.0 / (sigma[row.group] * sigma[row.group]);
+            // q = A Σ Aᵀ over the observation's few non-zero columns.
+            let mut q = Matrix2::zeros();
+            for (ca, ja) in &row.global {
+                for (cb, jb) in &row.global {
+                    q += ja * jb.transpose() * s_inv[(*ca, *cb)];
+                }
+            }
+            if let Some((r, a_r)) = &row.local {
+                let (own, cross) = &blocks[*r];
+                let mut cg = DMatrix::zeros(cross.nrows(), 2);
+                for (col, d) in &row.global {
+                    cg += cross.column(*col) * d.transpose();
+                }
+                let c = a_r * cg;
+                let o = a_r * own * a_r.transpose();
+                q += Matrix2::from_fn(|i, j| c[(i, j)] + c[(j, i)] + o[(i, j)]);
+            }
+            red[row.group] += 2.0 - weight * q.trace();
+        }
+        let mut settled = true;
+        for g in 0..2 {
+            if red[g] > 1.0 {
+                let factor = normal.cost[g] / red[g];
+                if (factor - 1.0).abs() > 1e-2 {
+                    settled = false;
+                }
+                sigma[g] *= factor.sqrt();
+            }
+        }
+        result = Some((normal, s_inv, v_inv, red));
+        if settled {
+            break;
+        }
+    }
+    let (normal, s_inv, v_inv, red) = result.ok_or(SystemError::Singular)?;
+    // The core [free inner | P] of the reduced covariance.
+    let core: Vec<usize> = (0..inner_free.len())
+        .chain((0..3).map(|a| layout.centre() + a))
+        .collect();
+    let core_covariance =
+        DMatrix::from_fn(core.len(), core.len(), |a, b| s_inv[(core[a], core[b])]);
+    let mut rms: Vec<(f64, usize)> = vec![(0.0, 0); ray_ids.len()];
+    for row in &normal.rows {
+        if let Some((r, _)) = &row.local {
+            rms[*r].0 += row.value.norm_squared();
+            rms[*r].1 += 1;
+        }
+    }
+    let adjusted = ray_ids
+        .iter()
+        .enumerate()
+        .map(|(r, id)| {
+            let (own, cross_all) = ray_covariance(&normal, &s_inv, &v_inv, r);
+            let cross = DMatrix::from_fn(own.nrows(), core.len(), |a, b| cross_all[(a, core[b])]);
+            AdjustedRay {
+                id: *id,
+                params: state.rays[r].clone(),
+                planes: by_ray[id].len(),
+                covariance: own,
+                cross,
+                rms_px: (rms[r].0 / (2 * rms[r].1.max(1)) as f64).sqrt() / px,
+            }
+        })
+        .collect();
+    Ok(SystemAdjustment {
+        inner: inner_from_array(state.inner),
+        inner_free,
+        poses: state.poses,
+        centre: state.centre,
+        rays: adjusted,
+        core_covariance,
+        sigma_targets_px: sigma[0] / px,
+        sigma_dots_px: sigma[1] / px,
+        redundancy: [red[0], red[1]],
+        single_plane,
+        left_out,
+        iterations,
+    })
+}
+
+/// A ray's start: slopes of the line through the centre fitted to its points, and for the
+/// non-central model the offset at the centre's z.
+fn start_line(centre: &Vector3<f64>, points: &[PlanePoint], noncentral: bool) -> Vec<f64> {
+    if noncentral {
+        let lines = crate::projector_calibration::noncentral_lines(
+            &BTreeMap::from([(0u16, points.to_vec())]),
+            centre,
+        );
+        let (direction, offset) = lines[&0];
+        vec![
+            direction.x / direction.z,
+            direction.y / direction.z,
+            offset.x,
+            offset.y,
+        ]
+    } else {
+        let d = crate::projector_calibration::direction_cosines(centre, points);
+        vec![d.x / d.z, d.y / d.z]
+    }
+}
+
+/// The state moved by `scale` × the step.
+fn step(
+    state: &State,
+    layout: &Layout,
+    dg: &DVector<f64>,
+    dr: &[DVector<f64>],
+    scale: f64,
+) -> State {
+    let mut next = state.clone();
+    for (slot, &k) in layout.inner.iter().enumerate() {
+        next.inner[k] += scale * dg[slot];
+    }
+    for (k, pose) in next.poses.iter_mut().enumerate() {
+        let mut a = pose_array(pose);
+        for (i, v) in a.iter_mut().enumerate() {
+            *v += scale * dg[layout.pose(k) + i];
+        }
+        *pose = pose_from(a);
+    }
+    for a in 0..3 {
+        next.centre[a] += scale * dg[layout.centre() + a];
+    }
+    for (j, x) in next.control.iter_mut().enumerate() {
+        for a in 0..3 {
+            x[a] += scale * dg[layout.point(j) + a];
+        }
+    }
+    for (params, d) in next.rays.iter_mut().zip(dr) {
+        for (p, v) in params.iter_mut().zip(d.iter()) {
+            *p += scale * v;
+        }
+    }
+    next
+}
+
+/// Linearises every observation and accumulates the normal equations (weights from σ per
+/// group: targets, dots; control by its σ; the inner orientation by the prior).
+#[allow(clippy::too_many_arguments)]
+fn assemble(
+    input: &SystemInput,
+    layout: &Layout,
+    state: &State,
+    ray_index: &BTreeMap<u16, usize>,
+    inner0: &[f64; INNER],
+    prior_weight: &Option<DMatrix<f64>>,
+    sigma: &[f64; 2],
+) -> Result<Normal, SystemError> {
+    let n = layout.size();
+    let inner = inner_from_array(state.inner);
+    let mut rows = Vec::new();
+    for (k, plate) in input.plates.iter().enumerate() {
+        let pose = &state.poses[k];
+        for (pixel, j) in &plate.targets {
+            let photo = input.grid.pixel_to_photo(pixel.x, pixel.y);
+            let r = image_residual(&inner, &photo, pose, &state.control[*j]);
+            if r.z_cam >= 0.0 {
+                return Err(SystemError::Geometry(format!(
+                    "image {:?}: control point {} lies behind the camera",
+                    plate.image, input.control[*j].point
+                )));
+            }
+            let mut global = Vec::new();
+            for (slot, &kk) in layout.inner.iter().enumerate() {
+                global.push((slot, r.d_inner.column(kk).into_owned()));
+            }
+            for a in 0..6 {
+                global.push((layout.pose(k) + a, r.d_pose.column(a).into_owned()));
+            }
+            for a in 0..3 {
+                global.push((layout.point(*j) + a, r.d_point.column(a).into_owned()));
+            }
+            rows.push(Linear {
+                value: r.value,
+                global,
+                local: None,
+                group: 0,
+            });
+        }
+        for dot in &plate.dots {
+            let Some(&ri) = ray_index.get(&dot.id) else {
+                continue;
+            };
+            let params = &state.rays[ri];
+            let geometry = || {
+                SystemError::Geometry(format!(
+                    "image {:?}: ray {} does not meet the plate",
+                    plate.image, dot.id
+                ))
+            };
+            let x = dot_point(pose, &state.centre, params).ok_or_else(geometry)?;
+            let jx = dot_point_jacobian(pose, &state.centre, params).ok_or_else(geometry)?;
+            let photo = input.grid.pixel_to_photo(dot.col, dot.row);
+            let r = image_residual(&inner, &photo, pose, &x);
+            if r.z_cam >= 0.0 {
+                return Err(geometry());
+            }
+            let through = DMatrix::from_fn(2, 3, |a, b| r.d_point[(a, b)]) * &jx;
+            let mut global = Vec::new();
+            for (slot, &kk) in layout.inner.iter().enumerate() {
+                global.push((slot, r.d_inner.column(kk).into_owned()));
+            }
+            for a in 0..6 {
+                let d = r.d_pose.column(a) + Vector2::new(through[(0, a)], through[(1, a)]);
+                global.push((layout.pose(k) + a, d));
+            }
+            for a in 0..3 {
+                let d = Vector2::new(through[(0, 6 + a)], through[(1, 6 + a)]);
+                global.push((layout.centre() + a, d));
+            }
+            let local = through.columns(9, params.len()).into_owned();
+            rows.push(Linear {
+                value: r.value,
+                global,
+                local: Some((ri, local)),
+                group: 1,
+            });
+        }
+    }
+    let rays = state.rays.len();
+    let mut normal = Normal {
+        u: DMatrix::zeros(n, n),
+        g: DVector::zeros(n),
+        v: state
+            .rays
+            .iter()
+            .map(|p| DMatrix::zeros(p.len(), p.len()))
+            .collect(),
+        w: state
+            .rays
+            .iter()
+            .map(|p| DMatrix::zeros(n, p.len()))
+            .collect(),
+        g_r: state.rays.iter().map(|p| DVector::zeros(p.len())).collect(),
+        cost: [0.0; 3],
+        rows: Vec::new(),
+    };
+    debug_assert_eq!(normal.v.len(), rays);
+    for row in &rows {
+        let w = 1.0 / (sigma[row.group] * sigma[row.group]);
+        normal.cost[row.group] += w * row.value.norm_squared();
+        for (ca, ja) in &row.global {
+            normal.g[*ca] -= w * ja.dot(&row.value);
+            for (cb, jb) in &row.global {
+                normal.u[(*ca, *cb)] += w * ja.dot(jb);
+            }
+        }
+        if let Some((r, a_r)) = &row.local {
+            let v2 = DVector::from_column_slice(row.value.as_slice());
+            normal.v[*r] += a_r.transpose() * a_r * w;
+            normal.g_r[*r] -= a_r.transpose() * &v2 * w;
+            for (ca, ja) in &row.global {
+                let wa = a_r.transpose() * DVector::from_column_slice(ja.as_slice()) * w;
+                for b in 0..a_r.ncols() {
+                    normal.w[*r][(*ca, b)] += wa[b];
+                }
+            }
+        }
+    }
+    // Control coordinates and the inner orientation's prior.
+    for (j, c) in input.control.iter().enumerate() {
+        let w = 1.0 / c.sigma.max(1e-6).powi(2);
+        let d = state.control[j] - c.xyz;
+        normal.cost[2] += w * d.norm_squared();
+        for a in 0..3 {
+            let s = layout.point(j) + a;
+            normal.u[(s, s)] += w;
+            normal.g[s] -= w * d[a];
+        }
+    }
+    if let Some(p) = prior_weight {
+        let d = DVector::from_iterator(
+            layout.inner.len(),
+            layout.inner.iter().map(|&k| state.inner[k] - inner0[k]),
+        );
+        normal.cost[2] += (d.transpose() * p * &d)[(0, 0)];
+        let m = layout.inner.len();
+        let pd = p * &d;
+        for a in 0..m {
+            normal.g[a] -= pd[a];
+            for b in 0..m {
+                normal.u[(a, b)] += p[(a, b)];
+            }
+        }
+    }
+    normal.rows = rows;
+    Ok(normal)
+}
+
+/// Ray r's covariance and its covariance with the reduced parameters (m × G):
+/// V⁻¹ + V⁻¹ Wᵀ S⁻¹ W V⁻¹ and −V⁻¹ Wᵀ S⁻¹.
+fn ray_covariance(
+    normal: &Normal,
+    s_inv: &DMatrix<f64>,
+    v_inv: &[DMatrix<f64>],
+    r: usize,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let wv = &normal.w[r] * &v_inv[r];
+    let cross = -(wv.transpose() * s_inv);
+    let own = &v_inv[r] - &cross * &wv;
+    (own, cross)
+}
+
+/// The reduced system S Δg = b and the rays' V⁻¹.
+struct Reduced {
+    s: DMatrix<f64>,
+    b: DVector<f64>,
+    v_inv: Vec<DMatrix<f64>>,
+}
+
+/// The reduced system of the normal equations.
+fn reduce(normal: &Normal) -> Result<Reduced, SystemError> {
+    let mut s = normal.u.clone();
+    let mut b = normal.g.clone();
+    let mut v_inv = Vec::with_capacity(normal.v.len());
+    for r in 0..normal.v.len() {
+        let vi = normal.v[r]
+            .clone()
+            .try_inverse()
+            .ok_or(SystemError::Singular)?;
+        let wv = &normal.w[r] * &vi;
+        s -= &wv * normal.w[r].transpose();
+        b -= &wv * &normal.g_r[r];
+        v_inv.push(vi);
+    }
+    Ok(Reduced { s, b, v_inv })
+}
+
+/// A point reconstructed in the camera system with its covariance in two shares.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SystemPoint {
+    /// The point (camera system, mm).
+    pub point: Vector3<f64>,
+    /// Covariance from the dot's image noise (mm²).
+    pub image: Matrix3<f64>,
+    /// Covariance from the calibration (mm²).
+    pub calibration: Matrix3<f64>,
+}
+
+impl SystemAdjustment {
+    /// A dot reconstructed in the camera system with its covariance: from the image noise of
+    /// the dot (the estimated σ of the dots) and from the calibration (inner orientation,
+    /// centre and the ray's parameters with all their correlations), first-order by central
+    /// differences.
+    pub fn reconstruct(
+        &self,
+        grid: &PixelGrid<f64>,
+        dot: &DotObservation,
+        method: Method,
+    ) -> Result<SystemPoint, SystemError> {
+        let index = self
+            .rays
+            .binary_search_by_key(&dot.id, |r| r.id)
+            .map_err(|_| SystemError::Geometry(format!("no ray {}", dot.id)))?;
+        let ray = &self.rays[index];
+        let k = self.inner_free.len();
+        let mut theta: Vec<f64> = self
+            .inner_free
+            .iter()
+            .map(|&i| inner_to_array(&self.inner)[i])
+            .collect();
+        theta.extend(self.centre.iter());
+        theta.extend(&ray.params);
+        let point = |theta: &[f64], col: f64, row: f64| -> Result<Vector3<f64>, SystemError> {
+            let mut a = inner_to_array(&self.inner);
+            for (slot, &i) in self.inner_free.iter().enumerate() {
+                a[i] = theta[slot];
+            }
+            let inner = inner_from_array(a);
+            let refined = inner.refine(grid.pixel_to_photo(col, row));
+            let camera = Ray {
+                point: Vector3::zeros(),
+                direction: Vector3::new(refined.x, refined.y, -inner.f),
+            };
+            let centre = Vector3::new(theta[k], theta[k + 1], theta[k + 2]);
+            let p = &theta[k + 3..];
+            let offset = match p.len() {
+                4 => Vector3::new(p[2], p[3], 0.0),
+                _ => Vector3::zeros(),
+            };
+            let projector = Ray {
+                point: centre + offset,
+                direction: -Vector3::new(p[0], p[1], 1.0),
+            };
+            let hit = match method {
+                Method::Paper => intersect_paper(&camera, &projector),
+                Method::ClosestApproach => closest_approach(&camera, &projector),
+            };
+            hit.map(|h| h.point)
+                .map_err(|e| SystemError::Geometry(format!("ray {}: {e}", dot.id)))
+        };
+        let x = point(&theta, dot.col, dot.row)?;
+        let h_px = 0.01;
+        let d_col = (point(&theta, dot.col + h_px, dot.row)?
+            - point(&theta, dot.col - h_px, dot.row)?)
+            / (2.0 * h_px);
+        let d_row = (point(&theta, dot.col, dot.row + h_px)?
+            - point(&theta, dot.col, dot.row - h_px)?)
+            / (2.0 * h_px);
+        let s2 = self.sigma_dots_px * self.sigma_dots_px;
+        let image = (d_col * d_col.transpose() + d_row * d_row.transpose()) * s2;
+        let mut jac = DMatrix::zeros(3, theta.len());
+        for i in 0..theta.len() {
+            let h = 1e-6 * theta[i].abs().max(1e-3);
+            let (mut up, mut down) = (theta.clone(), theta.clone());
+            up[i] += h;
+            down[i] -= h;
+            let d = (point(&up, dot.col, dot.row)? - point(&down, dot.col, dot.row)?) / (2.0 * h);
+            jac.set_column(i, &d);
+        }
+        let cov = &jac * self.ray_parameter_covariance(index) * jac.transpose();
+        Ok(SystemPoint {
+            point: x,
+            image,
+            calibration: Matrix3::from_fn(|a, b| cov[(a, b)]),
+        })
+    }
+}
