@@ -9,6 +9,7 @@ mod export_opencv;
 mod identify;
 mod images_cli;
 mod images_to_points;
+mod json_output;
 mod link_errors;
 mod link_in_process;
 mod measure;
