@@ -16,6 +16,7 @@ pub mod ply;
 pub mod projector_calibration;
 pub mod reconstruct;
 pub mod resection;
+pub mod residuals;
 pub mod simulate;
 pub mod svg;
 pub mod system;

@@ -738,9 +738,25 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let progress =
                 output.progress(format!("calibrating the camera from {}", obs.display()));
-            let file = bundle::calibrate_files(&init, &obs, control.as_deref(), &out, &options)?;
+            let (file, residuals) = bundle::calibrate_files_with_residuals(
+                &init,
+                &obs,
+                control.as_deref(),
+                &out,
+                &options,
+            )?;
             progress.finish_and_clear();
-            output.status(format!("camera calibration -> {}", out.display()));
+            let pixel_size = file.pixel_size;
+            output.status(format!(
+                "{}camera calibration -> {}, residuals -> {}",
+                deltaz_host::residuals::summary(
+                    &residuals,
+                    file.sigma0.unwrap_or(f64::NAN) / pixel_size,
+                    image_sigma_px
+                ),
+                out.display(),
+                deltaz_host::residuals::residuals_path(&out).display()
+            ));
             let mut json = serde_json::to_value(&file)?;
             json["out"] = serde_json::json!(out);
             output.result(&cli::camera_summary(&file, &options.free.inner), &json)?;

@@ -15,4 +15,5 @@ mod link_in_process;
 mod measure;
 mod measure_cli;
 mod projector_cli;
+mod residuals_cli;
 mod simulate_images;
