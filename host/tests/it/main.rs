@@ -15,5 +15,6 @@ mod link_in_process;
 mod measure;
 mod measure_cli;
 mod projector_cli;
+mod readme;
 mod residuals_cli;
 mod simulate_images;
