@@ -140,6 +140,18 @@ pub fn calibrate_files(
     out: &Path,
     options: &CalibrationOptions,
 ) -> anyhow::Result<CameraFile> {
+    Ok(calibrate_files_with_residuals(init, obs, control, out, options)?.0)
+}
+
+/// [`calibrate_files`], also writing every observation's residual next to `out`
+/// (`camera.residuals.csv`, see [`crate::residuals`]) together with it, all or nothing.
+pub fn calibrate_files_with_residuals(
+    init: &Path,
+    obs: &Path,
+    control: Option<&Path>,
+    out: &Path,
+    options: &CalibrationOptions,
+) -> anyhow::Result<(CameraFile, Vec<crate::residuals::Residual>)> {
     let start = crate::io::camera_file::read_camera(init)?;
     let observations = crate::io::observations::read_observations(obs)?;
     let control = match control {
@@ -156,8 +168,12 @@ pub fn calibrate_files(
     )?;
     let calibration = calibrate(problem, options)?;
     let file = camera_file(&calibration, &observations);
-    crate::io::camera_file::write_camera(out, &file)?;
-    Ok(file)
+    let residuals = crate::residuals::residuals(&calibration, &observations);
+    let json = serde_json::to_string_pretty(&file)? + "\n";
+    let csv = crate::residuals::residuals_csv(&residuals);
+    let csv_path = crate::residuals::residuals_path(out);
+    crate::io::atomic::write_all_atomic(&[(out, json.as_bytes()), (&csv_path, csv.as_bytes())])?;
+    Ok((file, residuals))
 }
 
 /// A short report of a calibration: the free inner parameters with σ, σ0, RMS, rejections.

@@ -18,6 +18,91 @@ use anyhow::{bail, Result};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 
+/// How a command reports: text for people or one JSON object on stdout; status and progress on
+/// stderr unless `--quiet`.
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
+pub struct Output {
+    /// Print the result as one JSON object on stdout (status and progress stay on stderr).
+    #[arg(long)]
+    pub json: bool,
+    /// No status lines or progress on stderr (errors are still printed).
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl Output {
+    /// A status line on stderr.
+    pub fn status(&self, line: impl std::fmt::Display) {
+        if !self.quiet {
+            eprintln!("{line}");
+        }
+    }
+
+    /// The result on stdout: `text` for people, or `json`.
+    pub fn result(&self, text: &str, json: &serde_json::Value) -> Result<()> {
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(json)?);
+        } else {
+            print!("{text}");
+        }
+        Ok(())
+    }
+
+    /// Progress of a step that may take more than a second: a spinner on a terminal, a plain
+    /// line when stderr is not one, nothing with `--quiet`. Finish it with
+    /// `finish_and_clear`.
+    pub fn progress(&self, message: String) -> indicatif::ProgressBar {
+        use std::io::IsTerminal;
+        if self.quiet {
+            return indicatif::ProgressBar::hidden();
+        }
+        if !std::io::stderr().is_terminal() {
+            eprintln!("{message} ...");
+            return indicatif::ProgressBar::hidden();
+        }
+        let bar = indicatif::ProgressBar::new_spinner().with_message(message);
+        bar.enable_steady_tick(std::time::Duration::from_millis(120));
+        bar
+    }
+}
+
+/// The calibrated camera for people: the estimated parameters with σ and units, then σ0, RMS
+/// (per coordinate) and the rejected observations.
+pub fn camera_summary(file: &crate::io::camera_file::CameraFile, free: &[bool; 8]) -> String {
+    use crate::io::camera_file::INNER_NAMES;
+    const UNITS: [&str; 8] = ["mm", "mm", "mm", "mm⁻²", "mm⁻⁴", "mm⁻⁶", "mm⁻¹", "mm⁻¹"];
+    let (values, sigma) = (file.inner.to_array(), file.sigma.to_array());
+    let mut text = String::new();
+    for k in (0..8).filter(|k| free[*k]) {
+        let (name, unit) = (INNER_NAMES[k], UNITS[k]);
+        text += &if k < 3 {
+            format!("{name:>3} = {:9.4} ± {:.4} {unit}\n", values[k], sigma[k])
+        } else {
+            format!(
+                "{name:>3} = {:10.3e} ± {:.2e} {unit}\n",
+                values[k], sigma[k]
+            )
+        };
+    }
+    text += &format!(
+        "σ0 = {:.4} mm in the image, RMS {:.3} px per coordinate ({:.3} px per point), \
+         {} iterations, {} rejected, {} correlations > 0.9\n",
+        file.sigma0.unwrap_or(f64::NAN),
+        file.rms_px.unwrap_or(f64::NAN),
+        file.rms_px.unwrap_or(f64::NAN) * 2f64.sqrt(),
+        file.iterations.unwrap_or(0),
+        file.rejected.len(),
+        file.correlations.len()
+    );
+    for r in &file.rejected {
+        text += &format!(
+            "rejected: image {} point {} ({:.1} px)\n",
+            r.image, r.point, r.residual_px
+        );
+    }
+    text
+}
+
 /// `--method` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum MethodArg {
@@ -74,7 +159,7 @@ fn check_not_collinear(path: &Path, points: &[nalgebra::Vector3<f64>]) -> Result
 }
 
 /// `deltaz compare`.
-pub fn compare(reconstructed: &Path, reference: &Path, json: bool) -> Result<()> {
+pub fn compare(reconstructed: &Path, reference: &Path, output: Output) -> Result<()> {
     let matched =
         match_points(&read_points(reconstructed)?, &read_points(reference)?).map_err(|e| {
             anyhow::anyhow!(
@@ -86,15 +171,7 @@ pub fn compare(reconstructed: &Path, reference: &Path, json: bool) -> Result<()>
     check_not_collinear(reconstructed, &matched.reconstructed)?;
     check_not_collinear(reference, &matched.reference)?;
     let a = assess(&matched.reconstructed, &matched.reference)?;
-    if json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&a.to_json(&matched.labels))?
-        );
-    } else {
-        print!("{}", a.to_text(&matched.labels));
-    }
-    Ok(())
+    output.result(&a.to_text(&matched.labels), &a.to_json(&matched.labels))
 }
 
 /// Arguments of `deltaz reconstruct`.
@@ -144,7 +221,7 @@ pub fn dot_observations(path: &Path, obs: &[Observation]) -> Result<Vec<(String,
 }
 
 /// `deltaz reconstruct`: everything is computed before anything is written.
-pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
+pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
     let (system, rig) = SystemFile::load(&args.system)?;
     let calibration = system.line_covariances();
     let obs = read_observations(&args.obs)?;
@@ -197,8 +274,26 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
         files.push((path, text.as_bytes()));
     }
     write_all_atomic(&files)?;
-    println!("{} points -> {}", points.len(), args.out.display());
-    Ok(())
+    let miss_rms =
+        (points.iter().map(|p| p.miss * p.miss).sum::<f64>() / points.len().max(1) as f64).sqrt();
+    output.result(
+        &format!(
+            "{} points from {} images, miss distance RMS {:.3} mm, in the rig frame (mm) -> {}\n",
+            points.len(),
+            images.len(),
+            miss_rms,
+            args.out.display()
+        ),
+        &serde_json::json!({
+            "points": points.len(),
+            "images": images.len(),
+            "miss_rms_mm": miss_rms,
+            "frame": RIG_FRAME,
+            "fingerprint": system.fingerprint,
+            "out": args.out,
+            "csv": args.csv,
+        }),
+    )
 }
 
 /// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
@@ -210,6 +305,7 @@ pub fn calibrate_projector(
     out: &Path,
     model: Model,
     image_sigma_px: f64,
+    output: Output,
 ) -> Result<()> {
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
@@ -236,18 +332,34 @@ pub fn calibrate_projector(
         .rays
         .iter()
         .max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
-    println!(
-        "{:?} model: centre {:.3?} mm (σ {:.3?}), {} rays{}; fingerprint {} -> {}",
-        model,
-        projector.centre.as_slice(),
-        projector.centre_sigma.as_slice(),
-        projector.rays.len(),
-        worst.map_or(String::new(), |w| format!(
-            ", worst ray {} misses its plane points by {:.3} mm RMS",
-            w.id, w.miss_rms
-        )),
-        file.fingerprint,
-        out.display()
-    );
-    Ok(())
+    let c = &projector.centre;
+    let cs = &projector.centre_sigma;
+    output.result(
+        &format!(
+            "{model:?} model: projector centre ({:.2}, {:.2}, {:.2}) ± ({:.2}, {:.2}, {:.2}) mm \
+             in the rig frame, {} rays{}; fingerprint {} -> {}\n",
+            c[0],
+            c[1],
+            c[2],
+            cs[0],
+            cs[1],
+            cs[2],
+            projector.rays.len(),
+            worst.map_or(String::new(), |w| format!(
+                ", worst ray {} misses its plane points by {:.3} mm RMS",
+                w.id, w.miss_rms
+            )),
+            file.fingerprint,
+            out.display()
+        ),
+        &serde_json::json!({
+            "model": format!("{model:?}").to_lowercase(),
+            "centre_mm": c.as_slice(),
+            "centre_sigma_mm": cs.as_slice(),
+            "rays": projector.rays.len(),
+            "worst_ray": worst.map(|w| serde_json::json!({"id": w.id, "miss_rms_mm": w.miss_rms})),
+            "fingerprint": file.fingerprint,
+            "out": out,
+        }),
+    )
 }

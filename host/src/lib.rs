@@ -13,6 +13,7 @@ pub mod link;
 pub mod measure;
 pub mod plates;
 pub mod ply;
+pub mod residuals;
 pub mod simulate;
 pub mod svg;
 pub mod system;

@@ -44,9 +44,8 @@ enum Command {
         /// Reference points (mm).
         #[arg(long)]
         reference: PathBuf,
-        /// Print JSON instead of tables.
-        #[arg(long)]
-        json: bool,
+        #[command(flatten)]
+        output: cli::Output,
     },
     /// Reconstruct identified dots (CSV `image,point,col,row[,kind]` in pixels, `point` = ray id;
     /// with a `kind` column only the `dot` rows) into a PLY point cloud: X, Y, Z in mm in the rig
@@ -73,6 +72,8 @@ enum Command {
         /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
+        #[command(flatten)]
+        output: cli::Output,
     },
     /// Space resection: the exterior orientation of every image from known control.
     Resect {
@@ -88,6 +89,8 @@ enum Command {
         /// Also write the poses as JSON ("deltaz.poses/1").
         #[arg(long)]
         out: Option<PathBuf>,
+        #[command(flatten)]
+        output: cli::Output,
     },
     /// The whole system on the simulated paper rig: camera and projector calibration, upload to
     /// the device, one frame of a torso-like surface; writes cloud.ply, report.md, report.json,
@@ -161,6 +164,8 @@ enum Command {
         /// Targets of the large network, 4 to 100,000.
         #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(4..=100_000))]
         targets: u32,
+        #[command(flatten)]
+        output: cli::Output,
     },
 }
 
@@ -180,6 +185,8 @@ enum ExportWhat {
         /// Output YAML file (e.g. camera.yml).
         #[arg(long)]
         out: PathBuf,
+        #[command(flatten)]
+        output: cli::Output,
     },
 }
 
@@ -416,6 +423,8 @@ enum CalibrateWhat {
         /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
         #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
+        #[command(flatten)]
+        output: cli::Output,
     },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
     Camera {
@@ -452,6 +461,8 @@ enum CalibrateWhat {
         /// A priori σ of image coordinates (px, > 0), weighting control against images.
         #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
+        #[command(flatten)]
+        output: cli::Output,
     },
 }
 
@@ -559,8 +570,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Compare {
             reconstructed,
             reference,
-            json,
-        } => cli::compare(&reconstructed, &reference, json)?,
+            output,
+        } => cli::compare(&reconstructed, &reference, output)?,
         Command::Reconstruct {
             system,
             obs,
@@ -569,36 +580,41 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             ascii,
             sigma_px,
             method,
-        } => cli::reconstruct(&cli::ReconstructArgs {
-            system,
-            obs,
-            out,
-            csv,
-            ascii,
-            sigma_px,
-            method,
-        })?,
+            output,
+        } => cli::reconstruct(
+            &cli::ReconstructArgs {
+                system,
+                obs,
+                out,
+                csv,
+                ascii,
+                sigma_px,
+                method,
+            },
+            output,
+        )?,
         Command::Resect {
             camera,
             obs,
             control,
             out,
+            output,
         } => {
             let cam = io::camera_file::read_camera(&camera)?;
             let observations = io::observations::read_observations(&obs)?;
             let control = io::control::read_control(&control)?;
-            let results = deltaz_host::plates::resect_images(
-                &obs,
-                &cam.grid(),
-                &cam.inner(),
-                &observations,
-                &control,
-            )?;
+            let results =
+                deltaz_host::plates::resect_images(&obs, &cam.grid(), &cam.inner(), &observations, &control)?;
             let poses = deltaz_host::plates::PosesFile::new(&results);
-            print!("{}", poses.table());
-            if let Some(out) = out {
-                io::atomic::write_json_atomic(&out, &poses)?;
+            if let Some(out) = &out {
+                io::atomic::write_json_atomic(out, &poses)?;
+                output.status(format!(
+                    "{} poses -> {}",
+                    poses.stations.len(),
+                    out.display()
+                ));
             }
+            output.result(&poses.table(), &serde_json::to_value(&poses)?)?;
         }
         Command::BenchMeasure { repeats } => print!("{}", measure::bench::run(repeats.into())),
         Command::Measure {
@@ -656,6 +672,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     out,
                     model,
                     image_sigma_px,
+                    output,
                 },
         } => {
             let leftover = ObservationsGuard::new(&out);
@@ -679,7 +696,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
                 (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
             };
-            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?;
+            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px, output)?;
             leftover.keep();
         }
         Command::Calibrate {
@@ -696,6 +713,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     p2,
                     free_network,
                     image_sigma_px,
+                    output,
                 },
         } => {
             let mut options = bundle::CalibrationOptions {
@@ -722,17 +740,30 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
                 _ => anyhow::bail!("give --obs FILE, or --images DIR with --control FILE"),
             };
-            let file = deltaz_host::camera_calibration::calibrate_files(
+            let progress =
+                output.progress(format!("calibrating the camera from {}", obs.display()));
+            let (file, residuals) = deltaz_host::camera_calibration::calibrate_files_with_residuals(
                 &init,
                 &obs,
                 control.as_deref(),
                 &out,
                 &options,
             )?;
-            print!(
-                "{}",
-                deltaz_host::camera_calibration::summary(&file, &options.free)
-            );
+            progress.finish_and_clear();
+            let pixel_size = file.pixel_size;
+            output.status(format!(
+                "{}camera calibration -> {}, residuals -> {}",
+                deltaz_host::residuals::summary(
+                    &residuals,
+                    file.sigma0.unwrap_or(f64::NAN) / pixel_size,
+                    image_sigma_px
+                ),
+                out.display(),
+                deltaz_host::residuals::residuals_path(&out).display()
+            ));
+            let mut json = serde_json::to_value(&file)?;
+            json["out"] = serde_json::json!(out);
+            output.result(&cli::camera_summary(&file, &options.free.inner), &json)?;
             leftover.keep();
         }
         Command::Device { link, what } => match what {
@@ -783,6 +814,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     camera,
                     system,
                     out,
+                    output,
                 },
         } => {
             let (input, is_system) = match (camera, system) {
@@ -791,22 +823,39 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 (None, None) => anyhow::bail!("give --camera FILE or --system FILE"),
             };
             let cv = deltaz_host::export::export_opencv(&input, is_system, &out)?;
-            eprintln!(
-                "OpenCV camera: f {:.2} px, principal point ({:.2}, {:.2}) px, {} images, \
-                 distortion refit error at most {:.4} px -> {}",
-                cv.focal_px[0],
-                cv.principal_px[0],
-                cv.principal_px[1],
-                cv.extrinsics.len(),
-                cv.refit_max_px,
-                out.display()
-            );
+            output.result(
+                &format!(
+                    "OpenCV camera: f {:.2} px, principal point ({:.2}, {:.2}) px, {} images, \
+                     distortion refit error at most {:.4} px -> {}\n",
+                    cv.focal_px[0],
+                    cv.principal_px[0],
+                    cv.principal_px[1],
+                    cv.extrinsics.len(),
+                    cv.refit_max_px,
+                    out.display()
+                ),
+                &serde_json::json!({
+                    "focal_px": cv.focal_px,
+                    "principal_px": cv.principal_px,
+                    "distortion": cv.distortion,
+                    "refit_max_px": cv.refit_max_px,
+                    "images": cv.extrinsics.len(),
+                    "out": out,
+                }),
+            )?;
         }
-        Command::Bench { images, targets } => {
+        Command::Bench {
+            images,
+            targets,
+            output,
+        } => {
+            let mut text = String::new();
+            let mut runs = Vec::new();
             for scenario in [
                 simulate::Scenario::paper(),
                 simulate::Scenario::large(images, targets),
             ] {
+                let progress = output.progress(format!("calibrating {}", scenario.name));
                 let sim = simulate::simulate(&scenario, 1);
                 let options = bundle::CalibrationOptions::default();
                 let start = std::time::Instant::now();
@@ -819,19 +868,32 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     &options,
                 )?;
                 let cal = bundle::calibrate(problem, &options)?;
+                let seconds = start.elapsed().as_secs_f64();
+                progress.finish_and_clear();
                 let file = deltaz_host::camera_calibration::camera_file(&cal, &sim.camera_obs);
-                println!(
-                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm, {} correlations > 0.9",
+                text += &format!(
+                    "{}: {} images, {} targets, {} observations: {:.3} s, {} LM iterations, σ0 {:.4} mm, {} correlations > 0.9\n",
                     scenario.name,
                     cal.problem.images.len(),
                     cal.problem.xyz.len(),
                     sim.camera_obs.len(),
-                    start.elapsed().as_secs_f64(),
+                    seconds,
                     cal.iterations,
                     cal.solution.sigma0,
                     file.correlations.len()
                 );
+                runs.push(serde_json::json!({
+                    "scenario": scenario.name,
+                    "images": cal.problem.images.len(),
+                    "targets": cal.problem.xyz.len(),
+                    "observations": sim.camera_obs.len(),
+                    "seconds": seconds,
+                    "iterations": cal.iterations,
+                    "sigma0_mm": cal.solution.sigma0,
+                    "correlations": file.correlations.len(),
+                }));
             }
+            output.result(&text, &serde_json::json!({ "runs": runs }))?;
         }
     }
     Ok(())
