@@ -143,6 +143,8 @@ pub struct Device<F, P> {
     rays: RayTable,
     identifier: DeviceIdentifier,
     upload: Option<Upload>,
+    /// Why the stored calibration failed to load at the last boot (or reload), if it did.
+    boot_error: Option<ErrorCode>,
     stats: DeviceStats,
     reset: bool,
 }
@@ -164,6 +166,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             addr_of_mut!((*me).rays).write(RayTable::new());
             DeviceIdentifier::empty_in(&mut *addr_of_mut!((*me).identifier).cast());
             addr_of_mut!((*me).upload).write(None);
+            addr_of_mut!((*me).boot_error).write(None);
             addr_of_mut!((*me).stats).write(DeviceStats {
                 requests: 0,
                 bad_frames: 0,
@@ -184,10 +187,15 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         let Some(stored) = self.store.newest() else {
             return;
         };
-        // A stored calibration was checked at its commit, identifier included.
-        if let Ok(mut active) = self.activate(stored.slot, stored.len) {
-            active.summary.generation = stored.generation;
-            self.active = Some(active);
+        // A stored calibration was checked at its commit, identifier included: a failure here
+        // (a firmware with smaller capacities, say) is reported by Info.
+        match self.activate(stored.slot, stored.len) {
+            Ok(mut active) => {
+                active.summary.generation = stored.generation;
+                self.active = Some(active);
+                self.boot_error = None;
+            }
+            Err(e) => self.boot_error = Some(e),
         }
     }
 
@@ -255,6 +263,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             max_frame: MAX_FRAME as u32,
             max_calibration: self.max_calibration() as u32,
             calibration: self.active.as_ref().map(|a| a.summary),
+            boot_error: self.boot_error,
         }
     }
 
@@ -317,6 +326,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         match committed {
             Ok((mut active, stored)) => {
                 active.summary.generation = stored.generation;
+                self.boot_error = None;
                 let summary = active.summary;
                 self.active = Some(active);
                 Ok((summary.fingerprint, summary.generation))
