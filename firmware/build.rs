@@ -5,16 +5,15 @@ use std::{env, fs, path::PathBuf};
 /// of the code memory (0x003F_0000) is left out: it holds the calibration store.
 const MEMORY_X: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x00000000, LENGTH = 4032K\n  RAM : ORIGIN = 0x20000000, LENGTH = 4M\n}\n";
 
-/// STM32F429ZI: 2 MiB flash in two banks; sectors 10 and 11 (128 KiB each at 0x080C_0000) hold
-/// the calibration store, so the program gets sectors 0-9 (768 KiB). RAM: the 192 KiB of
-/// SRAM1-3, contiguous at 0x2000_0000 (the 64 KiB CCM is left unused).
-const MEMORY_X_NUCLEO_F429ZI: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x08000000, LENGTH = 768K\n  RAM : ORIGIN = 0x20000000, LENGTH = 192K\n}\n";
+/// STM32F401RE: 512 KiB flash; the program gets sectors 0-3 (16 KiB each: 64 KiB), sectors 4
+/// (64 KiB) and 5 (128 KiB) hold the calibration store. RAM: 96 KiB at 0x2000_0000.
+const MEMORY_X_NUCLEO_F401RE: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x08000000, LENGTH = 64K\n  RAM : ORIGIN = 0x20000000, LENGTH = 96K\n}\n";
 
 fn main() {
     if env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
         let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-        let memory = if env::var_os("CARGO_FEATURE_NUCLEO_F429ZI").is_some() {
-            MEMORY_X_NUCLEO_F429ZI
+        let memory = if env::var_os("CARGO_FEATURE_NUCLEO_F401RE").is_some() {
+            MEMORY_X_NUCLEO_F401RE
         } else {
             MEMORY_X
         };

@@ -4,6 +4,8 @@
 //! store.
 
 use crate::store::{Pending, Store, StoreError};
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
 use deltaz_shared::projector::{Projector, ProjectorRay};
@@ -141,32 +143,40 @@ pub struct Device<F, P> {
     rays: RayTable,
     identifier: DeviceIdentifier,
     upload: Option<Upload>,
+    /// Why the stored calibration failed to load at the last boot (or reload), if it did.
+    boot_error: Option<ErrorCode>,
     stats: DeviceStats,
     reset: bool,
 }
 
 impl<F: NorFlash, P: Probe> Device<F, P> {
-    /// A device holding no calibration yet: [`Device::load`] it where it will live (see
-    /// [`crate::server::Server::boot_in`]), since the device is large (the ray table, the
-    /// identifier) and every move of it costs stack.
-    #[inline(always)]
-    pub(crate) fn new(store: Store<F>, probe: P) -> Self {
-        Self {
-            store,
-            probe,
-            active: None,
-            rays: RayTable::new(),
-            identifier: DeviceIdentifier::empty(),
-            upload: None,
-            stats: DeviceStats {
+    /// A device holding no calibration yet, written in place into `slot` (see
+    /// [`crate::server::Server::boot_in`]): the device is large (the ray table, the identifier)
+    /// and every move of it costs stack. [`Device::load`] it there.
+    pub(crate) fn init_in(slot: &mut MaybeUninit<Self>, store: Store<F>, probe: P) -> &mut Self {
+        let me = slot.as_mut_ptr();
+        // SAFETY: every field of `*me` is written through a raw pointer to it (no reference to
+        // uninitialised memory is made; the identifier through `empty_in` on its own
+        // `MaybeUninit`, which has its layout) before `assume_init_mut`.
+        unsafe {
+            addr_of_mut!((*me).store).write(store);
+            addr_of_mut!((*me).probe).write(probe);
+            addr_of_mut!((*me).active).write(None);
+            // An empty heapless::Vec: its buffer stays uninitialised, nothing is copied.
+            addr_of_mut!((*me).rays).write(RayTable::new());
+            DeviceIdentifier::empty_in(&mut *addr_of_mut!((*me).identifier).cast());
+            addr_of_mut!((*me).upload).write(None);
+            addr_of_mut!((*me).boot_error).write(None);
+            addr_of_mut!((*me).stats).write(DeviceStats {
                 requests: 0,
                 bad_frames: 0,
                 points: 0,
                 last_compute_ticks: 0,
                 last_compute_points: 0,
                 stack_peak: 0,
-            },
-            reset: false,
+            });
+            addr_of_mut!((*me).reset).write(false);
+            slot.assume_init_mut()
         }
     }
 
@@ -177,10 +187,15 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         let Some(stored) = self.store.newest() else {
             return;
         };
-        // A stored calibration was checked at its commit, identifier included.
-        if let Ok(mut active) = self.activate(stored.slot, stored.len) {
-            active.summary.generation = stored.generation;
-            self.active = Some(active);
+        // A stored calibration was checked at its commit, identifier included: a failure here
+        // (a firmware with smaller capacities, say) is reported by Info.
+        match self.activate(stored.slot, stored.len) {
+            Ok(mut active) => {
+                active.summary.generation = stored.generation;
+                self.active = Some(active);
+                self.boot_error = None;
+            }
+            Err(e) => self.boot_error = Some(e),
         }
     }
 
@@ -248,6 +263,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             max_frame: MAX_FRAME as u32,
             max_calibration: self.max_calibration() as u32,
             calibration: self.active.as_ref().map(|a| a.summary),
+            boot_error: self.boot_error,
         }
     }
 
@@ -310,6 +326,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         match committed {
             Ok((mut active, stored)) => {
                 active.summary.generation = stored.generation;
+                self.boot_error = None;
                 let summary = active.summary;
                 self.active = Some(active);
                 Ok((summary.fingerprint, summary.generation))

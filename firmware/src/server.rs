@@ -13,6 +13,7 @@
 use crate::device::{Device, Probe};
 use crate::store::Store;
 use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use deltaz_shared::protocol::stream::view_request;
 use deltaz_shared::protocol::{WireError, MAX_FRAME, MAX_REQUEST};
 use embedded_io::{Read, Write};
@@ -30,31 +31,30 @@ pub struct Server<F, P> {
 impl<F: NorFlash, P: Probe> Server<F, P> {
     /// Boot a device on `store` (loading its newest valid calibration) and serve it.
     pub fn boot(store: Store<F>, probe: P) -> Self {
-        let mut server = Self::new(store, probe);
-        server.device.load();
-        server
+        let mut slot = MaybeUninit::uninit();
+        Self::boot_in(&mut slot, store, probe);
+        // SAFETY: `boot_in` wrote every field.
+        unsafe { slot.assume_init() }
     }
 
-    /// [`Server::boot`] into `slot` (a board's static): the server (about 102 KB) lives there and
-    /// never moves. (The compiler still builds the empty identifier in a temporary: a 64 KB
-    /// frame at boot, below the peak of serving.)
+    /// [`Server::boot`] into `slot` (a board's static): the server is written there in place,
+    /// field by field (no copy of its tables passes through the stack), and never moves.
     pub fn boot_in(slot: &mut MaybeUninit<Self>, store: Store<F>, probe: P) -> &mut Self {
-        let server = slot.write(Self::new(store, probe));
+        let me = slot.as_mut_ptr();
+        // SAFETY: every field of `*me` is written through a raw pointer to it (no reference to
+        // uninitialised memory is made; the device through `init_in` on its own
+        // `MaybeUninit`, which has its layout; zero bytes are valid u8 arrays) before
+        // `assume_init_mut`.
+        let server = unsafe {
+            Device::init_in(&mut *addr_of_mut!((*me).device).cast(), store, probe);
+            addr_of_mut!((*me).rx).write_bytes(0, 1);
+            addr_of_mut!((*me).rx_len).write(0);
+            addr_of_mut!((*me).overflow).write(false);
+            addr_of_mut!((*me).tx).write_bytes(0, 1);
+            slot.assume_init_mut()
+        };
         server.device.load();
         server
-    }
-
-    /// A server whose device holds no calibration yet. Inlined, so that [`Server::boot_in`]
-    /// writes it straight into its slot.
-    #[inline(always)]
-    fn new(store: Store<F>, probe: P) -> Self {
-        Self {
-            device: Device::new(store, probe),
-            rx: [0; MAX_REQUEST],
-            rx_len: 0,
-            overflow: false,
-            tx: [0; MAX_FRAME],
-        }
     }
 
     /// The device.

@@ -89,6 +89,7 @@ pub fn info(args: &LinkArgs) -> Result<()> {
             "max_frame": i.max_frame,
             "max_calibration": i.max_calibration,
             "calibration": calibration,
+            "boot_error": i.boot_error.map(|e| e.to_string()),
         });
         println!("{json}");
         return Ok(());
@@ -108,6 +109,9 @@ pub fn info(args: &LinkArgs) -> Result<()> {
             s.camera_centre
         ),
         None => println!("no calibration"),
+    }
+    if let Some(e) = i.boot_error {
+        println!("the stored calibration failed to load at boot: {e}");
     }
     Ok(())
 }

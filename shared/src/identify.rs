@@ -26,7 +26,10 @@
 use crate::projector::ProjectorRay;
 use crate::rig::Rig;
 use crate::{lit, Error};
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use nalgebra::{RealField, Vector2};
+use simba::scalar::SupersetOf;
 
 /// Pieces of each epipolar polyline.
 pub const SUBSEGMENTS: usize = 4;
@@ -162,7 +165,9 @@ pub struct Identifier<T: RealField, const R: usize, const C: usize, const E: usi
     entries: [u16; E],
 }
 
-impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identifier<T, R, C, E> {
+impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, const E: usize>
+    Identifier<T, R, C, E>
+{
     /// Build the segments of every ray of `rig` over `depth`, and the lookup grid of square
     /// cells of side `cell` pixels. `tolerance` (pixels) is the largest distance of a dot from
     /// its ray's segment: a few σ of the centroid noise plus the calibration's image error.
@@ -179,6 +184,15 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
 
     /// An identifier of no rays: every dot is unassigned.
     pub fn empty() -> Self {
+        let mut slot = MaybeUninit::uninit();
+        Self::empty_in(&mut slot);
+        // SAFETY: `empty_in` wrote every field.
+        unsafe { slot.assume_init() }
+    }
+
+    /// [`Self::empty`] written in place into `slot` (a device's static): the tables go straight
+    /// into their memory, no copy of them passes through the stack.
+    pub fn empty_in(slot: &mut MaybeUninit<Self>) -> &mut Self {
         // Ray indices and entry positions are u16.
         const { assert!(R <= u16::MAX as usize, "at most 65535 rays") };
         const { assert!(E <= u16::MAX as usize, "at most 65535 entries") };
@@ -186,16 +200,24 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
             id: 0,
             points: [Vector2::zeros(); SUBSEGMENTS + 1],
         };
-        Self {
-            segments: [zero; R],
-            rays: 0,
-            tolerance: T::one(),
-            cell: T::one(),
-            grid_cols: 0,
-            grid_rows: 0,
-            starts: [0; C],
-            total: 0,
-            entries: [0; E],
+        let me = slot.as_mut_ptr();
+        // SAFETY: every field of `*me` is written through a raw pointer to it (no reference to
+        // uninitialised memory is made), the arrays element by element (zero bytes are a valid
+        // u16), before `assume_init_mut`.
+        unsafe {
+            let segments = addr_of_mut!((*me).segments).cast::<EpipolarSegment<T>>();
+            for k in 0..R {
+                segments.add(k).write(zero);
+            }
+            addr_of_mut!((*me).rays).write(0);
+            addr_of_mut!((*me).tolerance).write(T::one());
+            addr_of_mut!((*me).cell).write(T::one());
+            addr_of_mut!((*me).grid_cols).write(0);
+            addr_of_mut!((*me).grid_rows).write(0);
+            addr_of_mut!((*me).starts).cast::<u16>().write_bytes(0, C);
+            addr_of_mut!((*me).total).write(0);
+            addr_of_mut!((*me).entries).cast::<u16>().write_bytes(0, E);
+            slot.assume_init_mut()
         }
     }
 
@@ -326,7 +348,7 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
         let clamp = |v: T, n: usize| -> usize {
             let v = v.max(T::zero()).min(lit::<T>((n - 1) as f64));
             // A small non-negative integer here.
-            nalgebra::try_convert::<T, f64>(v).map_or(0, |v| v as usize)
+            small_index(v)
         };
         Some((clamp(c, self.grid_cols), clamp(r, self.grid_rows)))
     }
@@ -473,9 +495,15 @@ impl<T: RealField + Copy, const R: usize, const C: usize, const E: usize> Identi
 }
 
 /// Cells of side `cell` covering `n` pixels.
-fn cells_along<T: RealField + Copy>(n: u32, cell: T) -> usize {
+fn cells_along<T: RealField + Copy + SupersetOf<f32>>(n: u32, cell: T) -> usize {
     let cells = (lit::<T>(f64::from(n)) / cell).ceil();
-    nalgebra::try_convert::<T, f64>(cells).map_or(1, |c| (c as usize).max(1))
+    small_index(cells).max(1)
+}
+
+/// A small non-negative whole number (a cell index or count) as an index, through f32 (exact
+/// below 2²⁴; no f64 on the device); NaN and negative values give 0.
+fn small_index<T: SupersetOf<f32>>(v: T) -> usize {
+    nalgebra::try_convert::<T, f32>(v).map_or(0, |v| v as usize)
 }
 
 /// The smallest distance between two polylines (segments that do not cross: the smallest

@@ -27,6 +27,9 @@ impl Default for InProcess {
 }
 
 impl InProcess {
+    /// The store's two slots in [`InProcessFlash`] (byte ranges).
+    pub const SLOTS: [(u32, u32); 2] = [(0, SLOT as u32), (SLOT as u32, 2 * SLOT as u32)];
+
     /// A device with an empty flash.
     pub fn new() -> Self {
         Self::with_flash(InProcessFlash::new())
@@ -42,8 +45,8 @@ impl InProcess {
 }
 
 fn boot(flash: InProcessFlash) -> Box<Server<InProcessFlash, NoProbe>> {
-    let slots = [(0, SLOT as u32), (SLOT as u32, 2 * SLOT as u32)];
-    let store = Store::new(flash, slots).unwrap_or_else(|_| unreachable!("a fixed valid layout"));
+    let store = Store::new(flash, InProcess::SLOTS)
+        .unwrap_or_else(|_| unreachable!("a fixed valid layout"));
     Box::new(Server::boot(store, NoProbe))
 }
 

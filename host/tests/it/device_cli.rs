@@ -46,13 +46,14 @@ fn points(path: &Path) -> HashMap<(String, String), [f64; 3]> {
 fn info_and_link_errors() {
     let info = ok(&["device", "info"]);
     assert!(
-        info.contains("protocol 2") && info.contains("no calibration"),
+        info.contains("protocol 3") && info.contains("no calibration"),
         "{info}"
     );
     let out = deltaz(&["device", "info", "--json"]);
     assert!(out.status.success());
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
-    assert_eq!(json["protocol"], 2);
+    assert_eq!(json["protocol"], 3);
+    assert!(json["boot_error"].is_null(), "{json}");
     assert_eq!(json["ray_capacity"], 512);
     assert!(json["calibration"].is_null(), "{json}");
     let absent = err(&["device", "info", "--port", "/dev/deltaz-none"]);

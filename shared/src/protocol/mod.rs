@@ -8,7 +8,7 @@
 //!
 //! | request ([`RequestBody`]) | response ([`ResponseBody`]) |
 //! |---|---|
-//! | `Info` | `Info(DeviceInfo)`: firmware and protocol version, capacities, calibration or none |
+//! | `Info` | `Info(DeviceInfo)`: firmware and protocol version, capacities, calibration or none, why the stored one failed to load at boot |
 //! | `UploadBegin { len, crc }` | `UploadReady { len }` |
 //! | `UploadChunk { offset, data }` | `ChunkAccepted { next_offset }` |
 //! | `UploadCommit` | `Committed { fingerprint, generation }` |
@@ -47,7 +47,7 @@ pub use frame::{decode_request, decode_response, encode_frame, WireError};
 use serde::{Deserialize, Serialize};
 
 /// The protocol version reported in [`DeviceInfo`]; a change of the wire format increments it.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 /// The most centroids in one `Compute` request.
 pub const MAX_BATCH: usize = 512;
 /// The most bytes in one upload chunk.
@@ -186,6 +186,9 @@ pub struct DeviceInfo {
     pub max_calibration: u32,
     /// The active calibration, if any.
     pub calibration: Option<CalibrationSummary>,
+    /// Why the stored calibration could not be loaded at boot (it is then not active), if it
+    /// could not.
+    pub boot_error: Option<ErrorCode>,
 }
 
 /// What identifies the active calibration.

@@ -71,6 +71,7 @@ fn responses() -> Vec<Response> {
                 centroid_bits: 6,
                 camera_centre: [375.121, 364.541, 1842.675],
             }),
+            boot_error: Some(ErrorCode::IdentifierCapacity),
         }),
         ResponseBody::UploadReady { len: 300 },
         ResponseBody::ChunkAccepted { next_offset: 1027 },
@@ -147,8 +148,9 @@ const REQUEST_FRAMES: [&str; 8] = [
 
 /// The frames of [`responses`], in order.
 const RESPONSE_FRAMES: [&str; 10] = [
-    "02 01 01 02 01 35 02 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
-     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 da e6 80 0c 00",
+    // Protocol 3, then (after the calibration) boot_error Some(IdentifierCapacity): 01 0a.
+    "02 01 01 02 01 37 03 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
+     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 0a 09 b5 98 0e 00",
     "09 02 01 ac 02 69 ef 33 66 00",
     "07 03 02 83 08 26 e7 02 2e 00",
     "11 04 03 ef 9b af cd f8 ac d1 91 01 02 d0 af 85 68 00",

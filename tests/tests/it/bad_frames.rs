@@ -287,8 +287,8 @@ fn fuzz_a_million_frames() {
     assert!(frames > 1_000_000);
 }
 
-/// Calibrations that decode but are not valid: each is refused before the flash is touched and
-/// the previous calibration stays active.
+/// Calibrations that decode but are not valid: each is refused before it becomes the stored
+/// newest (its bytes went only into the spare slot) and the previous calibration stays active.
 #[test]
 fn invalid_calibrations_are_refused() {
     use deltaz_shared::protocol::calibration::{decode_calibration, encode_calibration, WireRay};
@@ -318,6 +318,9 @@ fn invalid_calibrations_are_refused() {
     let mut zero_pixel = header.clone();
     zero_pixel.grid.pixel_size = 0.0;
     let too_many: Vec<WireRay> = (0..513).map(unit).collect();
+    let mut no_pixels = header.clone();
+    no_pixels.grid.width = 0;
+    no_pixels.grid.height = 0;
     let cases: Vec<(&str, _, Vec<WireRay>)> = vec![
         ("NaN focal length", nan_f, vec![ray]),
         ("zero pixel size", zero_pixel, vec![ray]),
@@ -325,6 +328,8 @@ fn invalid_calibrations_are_refused() {
         ("duplicate ray", header.clone(), vec![unit(5), unit(5)]),
         ("non-unit direction", header.clone(), vec![tilted(5, 0.01)]),
         ("513 rays", header.clone(), too_many),
+        ("no rays", header.clone(), vec![]),
+        ("a 0 × 0 sensor", no_pixels, vec![ray]),
     ];
     for (i, (what, mut h, rays)) in cases.into_iter().enumerate() {
         h.rays = rays.len() as u16;
@@ -345,5 +350,55 @@ fn invalid_calibrations_are_refused() {
             }
             other => panic!("{other:?}"),
         }
+    }
+}
+
+/// A request with seq 0 (the device's own for frames it could not read) is refused; a centroid
+/// off the sensor gets a status, not a point.
+#[test]
+fn seq_zero_and_off_sensor_centroids() {
+    let mut device = InProcess::new();
+    assert_eq!(
+        answer(&mut device, &request(0, RequestBody::Info)),
+        frame_error(0, WireError::Malformed)
+    );
+    let good = calibration_blob(&paper_rig(), 1, Method::ClosestApproach).unwrap();
+    upload(&mut device, &good, CRC.checksum(&good), 1);
+    let (col, row) = smoke_pixel().unwrap();
+    let on = Centroid::from_pixel(RAY, col, row, 6).unwrap();
+    // 800 px: inside the fixed point's range (1024 px at 1/64), off the 768-pixel-wide sensor.
+    let off = Centroid::from_pixel(RAY, 800.0, row, 6).unwrap();
+    let centroids = heapless::Vec::from_slice(&[on, off]).unwrap();
+    match answer(&mut device, &request(2, RequestBody::Compute { centroids })).body {
+        ResponseBody::Points { points, .. } => {
+            assert!(matches!(points[0], PointResult::Point { .. }));
+            assert_eq!(points[1], PointResult::Failed(PointStatus::OffSensor));
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// A stored calibration the firmware cannot load (its CRC holds, its content does not) is not
+/// activated, and Info says why instead of the device resetting in a loop.
+#[test]
+fn a_boot_failure_is_reported_by_info() {
+    use deltaz_firmware::store::Store;
+    use deltaz_host::link::InProcessFlash;
+    let mut store = Store::new(InProcessFlash::new(), InProcess::SLOTS).unwrap();
+    store.save(b"not a calibration").unwrap();
+    let mut device = InProcess::with_flash(store.into_flash());
+    match answer(&mut device, &request(1, RequestBody::Info)).body {
+        ResponseBody::Info(info) => {
+            assert_eq!(info.calibration, None);
+            assert_eq!(info.boot_error, Some(ErrorCode::InvalidCalibration));
+        }
+        other => panic!("{other:?}"),
+    }
+    // A good upload clears it.
+    let good = calibration_blob(&paper_rig(), 1, Method::ClosestApproach).unwrap();
+    upload(&mut device, &good, CRC.checksum(&good), 2);
+    match answer(&mut device, &request(3, RequestBody::Info)).body {
+        ResponseBody::Info(info) => assert_eq!(info.boot_error, None),
+        other => panic!("{other:?}"),
     }
 }

@@ -1,12 +1,13 @@
-//! Board shell for the STM32 Nucleo-F429ZI (stm32f4xx-hal): the protocol on USART3 (PD8/PD9,
-//! wired to the ST-LINK's USB virtual COM port) at 2 Mbaud, the calibration store in flash
-//! sectors 10 and 11 (128 KiB each at 0x080C_0000 and 0x080E_0000; the program lives in sectors
-//! 0-9, see `build.rs`), SysTick at the 168 MHz core clock. The server (102 KB) lives in a
-//! static, built there in place, and the stack peaks at about 67 KB (measured under QEMU with the
-//! same code): 169 KB of the F429's 192 KB of SRAM.
+//! Board shell for the STM32 Nucleo-F401RE (84 MHz Cortex-M4F, 512 KiB flash, 96 KiB SRAM;
+//! stm32f4xx-hal): the protocol on USART2 (PA2/PA3, wired to the ST-LINK's USB virtual COM port)
+//! at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the calibration store
+//! in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000), SysTick at the core
+//! clock. The server (60 KB) is written in place into a static and the stack peaks at about
+//! 6.3 KB (measured under QEMU with the same code).
 //!
 //! Build: `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release
-//! --features nucleo-f429zi --bin nucleo_f429zi`.
+//! --features nucleo-f401re --bin nucleo_f401re`; flash with probe-rs:
+//! `probe-rs run --chip STM32F401RETx target/thumbv7em-none-eabihf/release/nucleo_f401re`.
 #![no_std]
 #![no_main]
 
@@ -25,10 +26,10 @@ use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::serial::{config::Config, Serial};
 use stm32f4xx_hal::{block, pac, rcc};
 
-/// Sector 10 (offset from the flash base).
-const SLOT_A: (u32, u32) = (0xC_0000, 0xE_0000);
-/// Sector 11.
-const SLOT_B: (u32, u32) = (0xE_0000, 0x10_0000);
+/// Sector 4 (offset from the flash base).
+const SLOT_A: (u32, u32) = (0x1_0000, 0x2_0000);
+/// Sector 5.
+const SLOT_B: (u32, u32) = (0x2_0000, 0x4_0000);
 
 /// The on-chip flash, unlocked only for the duration of each erase or write.
 struct Flash(LockedFlash);
@@ -51,7 +52,8 @@ impl ReadNorFlash for Flash {
 
 impl NorFlash for Flash {
     const WRITE_SIZE: usize = 1;
-    const ERASE_SIZE: usize = 128 * 1024;
+    /// Sector 4's size; sector 5 is two of it (the HAL erases whole sectors).
+    const ERASE_SIZE: usize = 64 * 1024;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         NorFlash::erase(&mut self.0.unlocked(), from, to).map_err(|e| e.kind())
@@ -62,8 +64,8 @@ impl NorFlash for Flash {
     }
 }
 
-/// USART3 as an embedded-io serial port (the HAL speaks embedded-io 0.6; the library 0.7).
-struct Vcp(Serial<pac::USART3>);
+/// USART2 as an embedded-io serial port (the HAL speaks embedded-io 0.6; the library 0.7).
+struct Vcp(Serial<pac::USART2>);
 
 impl embedded_io::ErrorType for Vcp {
     type Error = embedded_io::ErrorKind;
@@ -101,16 +103,16 @@ impl embedded_io::Write for Vcp {
 #[entry]
 fn main() -> ! {
     if let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) {
-        // 8 MHz from the ST-LINK's MCO (bypass), PLL to 168 MHz; APB1 at 42 MHz gives 2 Mbaud
+        // 8 MHz from the ST-LINK's MCO (bypass), PLL to 84 MHz; APB1 at 42 MHz gives 2 Mbaud
         // exactly (USARTDIV 1.3125).
         let cfg = rcc::Config::hse(8.MHz())
             .bypass_hse_oscillator()
-            .sysclk(168.MHz())
+            .sysclk(84.MHz())
             .pclk1(42.MHz());
         let mut rcc = dp.RCC.freeze(cfg);
-        let gpiod = dp.GPIOD.split(&mut rcc);
-        let serial = dp.USART3.serial(
-            (gpiod.pd8, gpiod.pd9),
+        let gpioa = dp.GPIOA.split(&mut rcc);
+        let serial = dp.USART2.serial(
+            (gpioa.pa2, gpioa.pa3),
             Config::default().baudrate(2_000_000.bps()),
             &mut rcc,
         );
