@@ -1,13 +1,16 @@
-//! Detection timings (`deltaz bench-measure`): rendered dot grids measured by both centre
-//! methods. Speed is reported, never asserted.
+//! Detection timings (`deltaz bench-measure`): rendered dot grids (radius 3-8 px, blur σ 1 px,
+//! noise σ 2 DN, gradient background) measured by both centre methods and, as the peer, by
+//! OpenCV's `SimpleBlobDetector` in the same run, each with its error against the true centres.
+//! Speed is reported, never asserted.
 
 use super::detect::GrayView;
 use super::render::{Background, Scene, Spot};
 use super::{measure, CentreMethod, MeasureParams};
 use std::time::Instant;
 
-/// A grid of `cols × rows` dots of `radius` pixels filling a `width × height` image.
-pub fn dot_grid(width: usize, height: usize, cols: usize, rows: usize, radius: f64) -> Scene {
+/// A grid of `cols × rows` dots filling a `width × height` image, radii cycling through
+/// `radii`, sub-pixel phases spread over the grid.
+pub fn dot_grid(width: usize, height: usize, cols: usize, rows: usize, radii: &[f64]) -> Scene {
     let (pc, pr) = (
         width as f64 / (cols as f64 + 1.0),
         height as f64 / (rows as f64 + 1.0),
@@ -15,8 +18,8 @@ pub fn dot_grid(width: usize, height: usize, cols: usize, rows: usize, radius: f
     let mut spots = Vec::with_capacity(cols * rows);
     for j in 1..=rows {
         for i in 1..=cols {
-            // Sub-pixel phases spread over the grid.
             let phase = ((i * 7 + j * 13) % 10) as f64 / 10.0;
+            let radius = radii[(i + 3 * j) % radii.len()];
             spots.push(Spot::circle(
                 i as f64 * pc + phase,
                 j as f64 * pr + 0.7 * phase,
@@ -43,17 +46,93 @@ pub fn dot_grid(width: usize, height: usize, cols: usize, rows: usize, radius: f
     }
 }
 
-/// Time `measure` on each case, best of `repeats`; one line per case and method.
-pub fn run(repeats: usize) -> String {
-    let cases = [
-        ("768 x 512, 440 dots", dot_grid(768, 512, 22, 20, 4.0)),
+/// The benchmark's two images: 768 × 512 with 440 dots of radius 3-8 px and 12 MP with 4,000.
+pub fn cases() -> [(&'static str, Scene); 2] {
+    let radii = [3.0, 4.0, 5.0, 6.0, 7.0, 8.0];
+    [
+        ("768 x 512, 440 dots", dot_grid(768, 512, 22, 20, &radii)),
         (
-            "4000 x 3000 (12 MP), 4000 dots",
-            dot_grid(4000, 3000, 80, 50, 6.0),
+            "4000 x 3000, 4000 dots",
+            dot_grid(4000, 3000, 80, 50, &radii),
         ),
-    ];
-    let mut report = String::new();
-    for (name, scene) in cases {
+    ]
+}
+
+/// RMS distance (px) of the true centres from their nearest found centre, and how many true
+/// centres have one within 0.5 px.
+pub fn centre_error(scene: &Scene, found: &[(f64, f64)]) -> (f64, usize) {
+    // Found centres by cell of 32 pixels, so that matching stays linear.
+    let cell = 32.0;
+    let mut cells: std::collections::HashMap<(i64, i64), Vec<(f64, f64)>> = Default::default();
+    for &(c, r) in found {
+        cells
+            .entry(((c / cell).floor() as i64, (r / cell).floor() as i64))
+            .or_default()
+            .push((c, r));
+    }
+    let (mut sum, mut matched) = (0.0, 0);
+    for s in &scene.spots {
+        let (kc, kr) = ((s.col / cell).floor() as i64, (s.row / cell).floor() as i64);
+        let best = (-1..=1)
+            .flat_map(|dc| (-1..=1).map(move |dr| (kc + dc, kr + dr)))
+            .filter_map(|k| cells.get(&k))
+            .flatten()
+            .map(|&(c, r)| (c - s.col).hypot(r - s.row))
+            .fold(f64::INFINITY, f64::min);
+        if best < 0.5 {
+            sum += best * best;
+            matched += 1;
+        }
+    }
+    ((sum / matched.max(1) as f64).sqrt(), matched)
+}
+
+/// OpenCV's `SimpleBlobDetector` on the same image through `python3` (the script
+/// `opencv_peer.py`): best time (s) and the keypoints; `Err` says why it could not run.
+fn opencv_peer(img: &image::GrayImage, repeats: usize) -> Result<(f64, Vec<(f64, f64)>), String> {
+    let dir = std::env::temp_dir().join(format!("deltaz-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let (png, script) = (dir.join("image.png"), dir.join("opencv_peer.py"));
+    let run = || -> Result<std::process::Output, String> {
+        img.save(&png).map_err(|e| e.to_string())?;
+        std::fs::write(&script, include_str!("opencv_peer.py")).map_err(|e| e.to_string())?;
+        std::process::Command::new("python3")
+            .arg(&script)
+            .arg(&png)
+            .arg(repeats.to_string())
+            .output()
+            .map_err(|e| format!("python3: {e}"))
+    };
+    let output = run();
+    let _ = std::fs::remove_dir_all(&dir);
+    let output = output?;
+    if !output.status.success() {
+        let err = String::from_utf8_lossy(&output.stderr);
+        return Err(err.lines().last().unwrap_or("failed").to_owned());
+    }
+    let text = String::from_utf8_lossy(&output.stdout);
+    let mut lines = text.lines();
+    let time = lines
+        .next()
+        .and_then(|l| l.trim().parse().ok())
+        .ok_or("no time printed")?;
+    let points = lines
+        .filter_map(|l| {
+            let mut it = l.split_whitespace().map(str::parse::<f64>);
+            Some((it.next()?.ok()?, it.next()?.ok()?))
+        })
+        .collect();
+    Ok((time, points))
+}
+
+/// Time `measure` on each case, best of `repeats`, with the centre error against the truth;
+/// OpenCV's blob detector as the peer when `python3 -c "import cv2"` works.
+pub fn run(repeats: usize) -> String {
+    let mut report = String::from(
+        "| image | method | found | RMS error (px) | time (ms) | µs per dot | × OpenCV |\n|---|---|---|---|---|---|---|\n",
+    );
+    let mut notes = String::new();
+    for (name, scene) in cases() {
         let img = scene.render().to_u8();
         let view = GrayView {
             width: scene.width,
@@ -61,25 +140,52 @@ pub fn run(repeats: usize) -> String {
             pixels: img.as_raw().as_slice(),
             dn: 1.0,
         };
+        let peer = opencv_peer(&img, repeats);
+        let mut rows = Vec::new();
         for method in [CentreMethod::Template, CentreMethod::Gravity] {
             let params = MeasureParams {
                 method,
                 ..MeasureParams::default()
             };
             let mut best = f64::INFINITY;
-            let mut found = 0;
+            let mut found = Vec::new();
+            let mut label = format!("{method:?}");
             for _ in 0..repeats.max(1) {
                 let start = Instant::now();
-                found = measure(&view, &params).targets.len();
+                let m = measure(&view, &params);
                 best = best.min(start.elapsed().as_secs_f64());
+                found = m.targets.iter().map(|t| (t.col, t.row)).collect();
+                let passes: Vec<u32> = m
+                    .targets
+                    .iter()
+                    .filter_map(|t| Some(t.fit?.passes))
+                    .collect();
+                if !passes.is_empty() {
+                    let mean = passes.iter().sum::<u32>() as f64 / passes.len() as f64;
+                    label = format!("{method:?} ({mean:.1} passes)");
+                }
             }
+            rows.push((label, best, found));
+        }
+        match &peer {
+            Ok((time, points)) => {
+                rows.push(("OpenCV SimpleBlobDetector".into(), *time, points.clone()))
+            }
+            Err(why) => notes.push_str(&format!("{name}: OpenCV peer skipped: {why}\n")),
+        }
+        let peer_time = peer.as_ref().ok().map(|p| p.0);
+        for (method, time, found) in rows {
+            let (rms, matched) = centre_error(&scene, &found);
+            let ratio = peer_time.map_or("-".to_owned(), |t| format!("{:.2}", time / t));
             report.push_str(&format!(
-                "{name}: {method:?}: {found} targets in {:.1} ms ({:.2} µs per target)\n",
-                best * 1e3,
-                best * 1e6 / found.max(1) as f64
+                "| {name} | {method} | {matched}/{} | {rms:.4} | {:.1} | {:.2} | {ratio} |\n",
+                scene.spots.len(),
+                time * 1e3,
+                time * 1e6 / found.len().max(1) as f64,
             ));
         }
     }
+    report.push_str(&notes);
     report.push_str(&identification());
     report
 }

@@ -92,7 +92,7 @@ pub struct BackgroundField {
 
 impl BackgroundField {
     /// Estimate from an image (signed by polarity).
-    pub fn estimate<P: Copy + Into<f64>>(
+    pub fn estimate<P: Copy + Into<f64> + Sync>(
         img: &GrayView<P>,
         polarity: Polarity,
         tile: usize,
@@ -100,24 +100,27 @@ impl BackgroundField {
         let tile = tile.max(4);
         let nx = img.width.div_ceil(tile);
         let ny = img.height.div_ceil(tile);
-        let mut medians = Vec::with_capacity(nx * ny);
-        let mut buf = Vec::with_capacity(tile * tile);
-        for ty in 0..ny {
-            for tx in 0..nx {
-                buf.clear();
-                for r in ty * tile..((ty + 1) * tile).min(img.height) {
-                    for c in tx * tile..((tx + 1) * tile).min(img.width) {
-                        buf.push(img.signed(c, r, polarity));
+        // Every other row and column of a large tile is enough for its median (256 of 32²).
+        let stride = if tile >= 16 { 2 } else { 1 };
+        // Rows of tiles in parallel, each with its own buffer.
+        let rows = super::parallel_map(ny, |buf: &mut Vec<f64>, ty| {
+            (0..nx)
+                .map(|tx| {
+                    buf.clear();
+                    for r in (ty * tile..((ty + 1) * tile).min(img.height)).step_by(stride) {
+                        for c in (tx * tile..((tx + 1) * tile).min(img.width)).step_by(stride) {
+                            buf.push(img.signed(c, r, polarity));
+                        }
                     }
-                }
-                medians.push(median(&mut buf));
-            }
-        }
+                    median(buf)
+                })
+                .collect::<Vec<_>>()
+        });
         Self {
             tile,
             nx,
             ny,
-            medians,
+            medians: rows.concat(),
         }
     }
 
@@ -135,6 +138,47 @@ impl BackgroundField {
     }
 }
 
+/// [`BackgroundField::at`] along one row, all columns at once: per column the two tiles and the
+/// weight between them, computed once per image.
+struct RowInterpolation<'a> {
+    field: &'a BackgroundField,
+    columns: Vec<(usize, usize, f64)>,
+    tiles: Vec<f64>,
+}
+
+impl<'a> RowInterpolation<'a> {
+    fn new(field: &'a BackgroundField, width: usize) -> Self {
+        let t = field.tile as f64;
+        let columns = (0..width)
+            .map(|c| {
+                let fx = ((c as f64 + 0.5) / t - 0.5).clamp(0.0, (field.nx - 1) as f64);
+                let x0 = fx.floor() as usize;
+                (x0, (x0 + 1).min(field.nx - 1), fx - x0 as f64)
+            })
+            .collect();
+        Self {
+            field,
+            columns,
+            tiles: vec![0.0; field.nx],
+        }
+    }
+
+    /// The background of every column of `row` into `out`.
+    fn row(&mut self, row: usize, out: &mut [f64]) {
+        let f = self.field;
+        let fy = ((row as f64 + 0.5) / f.tile as f64 - 0.5).clamp(0.0, (f.ny - 1) as f64);
+        let y0 = fy.floor() as usize;
+        let y1 = (y0 + 1).min(f.ny - 1);
+        let ay = fy - y0 as f64;
+        for (x, tile) in self.tiles.iter_mut().enumerate() {
+            *tile = (1.0 - ay) * f.medians[y0 * f.nx + x] + ay * f.medians[y1 * f.nx + x];
+        }
+        for (o, &(x0, x1, ax)) in out.iter_mut().zip(&self.columns) {
+            *o = (1.0 - ax) * self.tiles[x0] + ax * self.tiles[x1];
+        }
+    }
+}
+
 /// The median of a buffer (reordered in place); 0 for an empty one.
 fn median(buf: &mut [f64]) -> f64 {
     if buf.is_empty() {
@@ -145,22 +189,18 @@ fn median(buf: &mut [f64]) -> f64 {
 }
 
 /// The image noise σ from the median absolute difference of horizontal neighbours
-/// (σ = 1.4826 · median|Δ| / √2), robust to targets and a smooth background. At most about 2²⁰
-/// pairs are sampled.
+/// (σ = 1.4826 · median|Δ| / √2), robust to targets and a smooth background. At most about 2¹⁶
+/// pairs are sampled (the median's relative error is then about 0.5 %).
 pub fn noise_sigma<P: Copy + Into<f64>>(img: &GrayView<P>) -> f64 {
     let pairs = img.width.saturating_sub(1) * img.height;
-    let step = (pairs >> 20).max(1);
-    let mut diffs = Vec::with_capacity(pairs / step + 1);
-    let mut k = 0;
-    for r in 0..img.height {
-        for c in 0..img.width.saturating_sub(1) {
-            if k % step == 0 {
-                let a = img.signed(c, r, Polarity::Bright);
-                diffs.push((img.signed(c + 1, r, Polarity::Bright) - a).abs());
-            }
-            k += 1;
-        }
-    }
+    let step = (pairs >> 16).max(1);
+    let mut diffs: Vec<f64> = (0..pairs)
+        .step_by(step)
+        .map(|k| {
+            let (r, c) = (k / (img.width - 1), k % (img.width - 1));
+            (img.signed(c + 1, r, Polarity::Bright) - img.signed(c, r, Polarity::Bright)).abs()
+        })
+        .collect();
     1.4826 * median(&mut diffs) / 2f64.sqrt()
 }
 
@@ -332,11 +372,14 @@ pub fn components<P: Copy + Into<f64>>(
     let mut prev: Vec<(usize, usize, usize)> = Vec::new();
     let mut cur: Vec<(usize, usize, usize)> = Vec::new();
     let mut weights = vec![0.0; img.width];
+    let mut rows = RowInterpolation::new(background, img.width);
+    let mut level = vec![0.0; img.width];
     for r in 0..img.height {
         cur.clear();
+        rows.row(r, &mut level);
         let mut c = 0;
         while c < img.width {
-            let w = img.signed(c, r, polarity) - background.at(c as f64, r as f64);
+            let w = img.signed(c, r, polarity) - level[c];
             if w <= threshold {
                 c += 1;
                 continue;
@@ -345,7 +388,7 @@ pub fn components<P: Copy + Into<f64>>(
             weights[c] = w;
             c += 1;
             while c < img.width {
-                let w = img.signed(c, r, polarity) - background.at(c as f64, r as f64);
+                let w = img.signed(c, r, polarity) - level[c];
                 if w <= threshold {
                     break;
                 }

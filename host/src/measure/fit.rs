@@ -10,12 +10,30 @@
 //! d = (ρ − 1) ρ / |Q u|, ρ² = uᵀ Q u, u = x − c (exact for circles). A tilted background plane
 //! is part of the model so that gradients of illumination do not pull the centre. Ten parameters:
 //! c (2), Q (3), A, s, b₀, b_x, b_y.
+//!
+//! # Speed
+//! The fit is the measurement's inner loop (thousands of blobs per frame), so it is written for
+//! the machine: the window's pixels are kept in a reused [`Scratch`] (no allocation per blob) as
+//! f32 (the positions are relative to the gravity centre, a few pixels, and the residuals a few
+//! DN: f32 carries them to 10⁻⁶ px); every iteration is one pass that evaluates the template and
+//! its gradient on [`LANES`] pixels at a time, branch-free with a polynomial exp and erfc, into
+//! the normal equations (f64 only for the 10 × 10 solve); it starts from the blob's gravity
+//! centre and moments and stops when the centre moves less than [`CENTRE_TOLERANCE`].
 
 use super::detect::{Blob, GrayView, Polarity};
 use nalgebra::{SMatrix, SVector};
 
 const N: usize = 10;
 type Params = SVector<f64, N>;
+
+/// Pixels evaluated together (the width the compiler vectorises the pass to).
+pub const LANES: usize = 8;
+
+/// The fit stops when the centre moves less than this (pixels).
+pub const CENTRE_TOLERANCE: f64 = 1e-3;
+
+/// At most this many Gauss-Newton steps.
+const MAX_ITERATIONS: usize = 20;
 
 /// The fitted template.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,80 +54,230 @@ pub struct EllipseFit {
     pub edge: f64,
     /// RMS of the fit residuals (DN).
     pub rms: f64,
+    /// Passes over the window (evaluations of the normal equations).
+    pub passes: u32,
 }
 
-/// Signed distance d to the ellipse edge at (x, y) and its gradient with respect to
-/// (c_x, c_y, q11, q12, q22): with w = Q u, ρ² = uᵀ w, q = |w|, d = (ρ² − ρ)/q, so
-/// ∂d = ((2ρ − 1) ∂ρ − d ∂q)/q, ∂ρ/∂c = −w/ρ, ∂q/∂c = −Q w/q, ∂ρ/∂(q11, q12, q22) =
-/// (u_x², 2 u_x u_y, u_y²)/(2ρ), ∂q/∂(q11, q12, q22) = (w_x u_x, w_x u_y + w_y u_x, w_y u_y)/q.
-fn distance(p: &Params, x: f64, y: f64) -> (f64, [f64; 5]) {
+/// The window's pixels, structure of arrays, padded to a multiple of [`LANES`] with pixels of
+/// weight 0. Reused from blob to blob: one per thread.
+#[derive(Debug, Clone, Default)]
+pub struct Scratch {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    v: Vec<f32>,
+    weight: Vec<f32>,
+}
+
+impl Scratch {
+    fn clear(&mut self) {
+        self.x.clear();
+        self.y.clear();
+        self.v.clear();
+        self.weight.clear();
+    }
+
+    fn push(&mut self, x: f32, y: f32, v: f32, weight: f32) {
+        self.x.push(x);
+        self.y.push(y);
+        self.v.push(v);
+        self.weight.push(weight);
+    }
+}
+
+/// e^x for x ≤ 0 (clamped at −87): 2ⁿ · e^f with f = x − n ln 2, |f| ≤ ln 2 / 2, by a degree-6
+/// Taylor polynomial (relative error below 10⁻⁶). Branch-free, so the pass vectorises.
+#[inline(always)]
+fn exp_neg(x: f32) -> f32 {
+    // Round to nearest by adding 1.5·2²³ (no call to `round`, which would stop vectorisation).
+    const SHIFT: f32 = 12_582_912.0;
+    let shifted = x.max(-87.0) * std::f32::consts::LOG2_E + SHIFT;
+    let n = shifted - SHIFT;
+    // ln 2 split in two (Cody-Waite) so that n · ln 2 loses nothing to rounding.
+    let f = (x.max(-87.0) - n * 0.693_145_75) - n * 1.428_606_8e-6;
+    let p = 1.0
+        + f * (1.0
+            + f * (0.5 + f * (1.0 / 6.0 + f * (1.0 / 24.0 + f * (1.0 / 120.0 + f / 720.0)))));
+    p * f32::from_bits(
+        (shifted
+            .to_bits()
+            .wrapping_sub(SHIFT.to_bits())
+            .wrapping_add(127))
+            << 23,
+    )
+}
+
+/// Φ(t) and φ(t), the normal CDF and density: erfc by Abramowitz & Stegun 7.1.26 (absolute error
+/// below 1.5·10⁻⁷) sharing its exponential with the density.
+#[inline(always)]
+fn normal_cdf_pdf(t: f32) -> (f32, f32) {
+    let z = t.abs() * std::f32::consts::FRAC_1_SQRT_2;
+    let k = 1.0 / (1.0 + 0.327_591_1 * z);
+    let poly = k
+        * (0.254_829_6
+            + k * (-0.284_496_74 + k * (1.421_413_7 + k * (-1.453_152_1 + k * 1.061_405_4))));
+    let e = exp_neg(-z * z);
+    let tail = 0.5 * poly * e;
+    let cdf = if t >= 0.0 { 1.0 - tail } else { tail };
+    (cdf, e * 0.398_942_3)
+}
+
+/// The template at one pixel (x, y relative to the reference): its value and gradient with
+/// respect to the parameters p = (c_x, c_y, q11, q12, q22, A, s, b₀, b_x, b_y).
+///
+/// The signed distance d and its gradient with respect to (c_x, c_y, q11, q12, q22): with
+/// w = Q u, ρ² = uᵀ w, q = |w|, d = (ρ² − ρ)/q, so ∂d = ((2ρ − 1) ∂ρ − d ∂q)/q, ∂ρ/∂c = −w/ρ,
+/// ∂q/∂c = −Q w/q, ∂ρ/∂(q11, q12, q22) = (u_x², 2 u_x u_y, u_y²)/(2ρ),
+/// ∂q/∂(q11, q12, q22) = (w_x u_x, w_x u_y + w_y u_x, w_y u_y)/q. At the very centre (ρ or q
+/// vanishing) the template is flat: d = −1/√max(q11, q22), no gradient.
+#[inline(always)]
+fn model(p: &[f32; N], x: f32, y: f32) -> (f32, [f32; N]) {
     let (ux, uy) = (x - p[0], y - p[1]);
     let (wx, wy) = (p[2] * ux + p[3] * uy, p[3] * ux + p[4] * uy);
-    let rho = (ux * wx + uy * wy).max(0.0).sqrt();
-    let q = wx.hypot(wy);
-    if q < 1e-12 || rho < 1e-12 {
-        // The very centre: deep inside, where the template is flat.
-        return (-1.0 / p[2].max(p[4]).max(1e-12).sqrt(), [0.0; 5]);
-    }
-    let d = (rho - 1.0) * rho / q;
+    let rho = (ux * wx + uy * wy).max(1e-12).sqrt();
+    let q = (wx * wx + wy * wy).max(1e-24).sqrt();
+    let centre = rho < 1e-6 || q < 1e-6;
+    let d = if centre {
+        -1.0 / p[2].max(p[4]).max(1e-12).sqrt()
+    } else {
+        (rho - 1.0) * rho / q
+    };
     let (qwx, qwy) = (p[2] * wx + p[3] * wy, p[3] * wx + p[4] * wy);
+    let (inv_rho, inv_q) = (1.0 / rho, 1.0 / q);
     let drho = [
-        -wx / rho,
-        -wy / rho,
-        ux * ux / (2.0 * rho),
-        ux * uy / rho,
-        uy * uy / (2.0 * rho),
+        -wx * inv_rho,
+        -wy * inv_rho,
+        0.5 * ux * ux * inv_rho,
+        ux * uy * inv_rho,
+        0.5 * uy * uy * inv_rho,
     ];
     let dq = [
-        -qwx / q,
-        -qwy / q,
-        wx * ux / q,
-        (wx * uy + wy * ux) / q,
-        wy * uy / q,
+        -qwx * inv_q,
+        -qwy * inv_q,
+        wx * ux * inv_q,
+        (wx * uy + wy * ux) * inv_q,
+        wy * uy * inv_q,
     ];
-    let k = 2.0 * rho - 1.0;
-    let grad = core::array::from_fn(|i| (k * drho[i] - d * dq[i]) / q);
-    (d, grad)
-}
-
-fn phi_cdf(t: f64) -> f64 {
-    0.5 * libm::erfc(-t / std::f64::consts::SQRT_2)
-}
-
-fn phi_pdf(t: f64) -> f64 {
-    (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt()
-}
-
-/// One pixel of the window: position relative to the reference (x̄, ȳ) and its value.
-struct Sample {
-    x: f64,
-    y: f64,
-    v: f64,
-}
-
-/// The model value and its gradient with respect to the parameters.
-fn model(p: &Params, s: &Sample) -> (f64, Params) {
-    let (d, dd) = distance(p, s.x, s.y);
-    let t = -d / p[6];
-    let cdf = phi_cdf(t);
-    let pdf = phi_pdf(t);
-    let value = p[7] + p[8] * s.x + p[9] * s.y + p[5] * cdf;
-    let mut g = Params::zeros();
+    let inv_s = 1.0 / p[6];
+    let (cdf, pdf) = normal_cdf_pdf(-d * inv_s);
     // ∂I/∂d = −A φ(t) / s.
-    let di = -p[5] * pdf / p[6];
-    for k in 0..5 {
-        g[k] = di * dd[k];
-    }
-    g[5] = cdf;
-    g[6] = p[5] * pdf * d / (p[6] * p[6]);
-    g[7] = 1.0;
-    g[8] = s.x;
-    g[9] = s.y;
-    (value, g)
+    let di = if centre {
+        0.0
+    } else {
+        -p[5] * pdf * inv_s * inv_q
+    };
+    let k = 2.0 * rho - 1.0;
+    let g = [
+        di * (k * drho[0] - d * dq[0]),
+        di * (k * drho[1] - d * dq[1]),
+        di * (k * drho[2] - d * dq[2]),
+        di * (k * drho[3] - d * dq[3]),
+        di * (k * drho[4] - d * dq[4]),
+        cdf,
+        p[5] * pdf * d * inv_s * inv_s,
+        1.0,
+        x,
+        y,
+    ];
+    (p[7] + p[8] * x + p[9] * y + p[5] * cdf, g)
 }
 
-fn cost(p: &Params, samples: &[Sample]) -> f64 {
-    samples.iter().map(|s| (model(p, s).0 - s.v).powi(2)).sum()
+/// Entries of the upper triangle of the 10 × 10 normal matrix.
+const PAIRS: usize = N * (N + 1) / 2;
+
+/// The normal equations at p: JᵀJ, Jᵀr and the cost Σ r².
+struct Normal {
+    jtj: SMatrix<f64, N, N>,
+    jtr: Params,
+    cost: f64,
+}
+
+/// One pass over the window, [`LANES`] pixels at a time (lane-wise sums, added up at the end).
+fn normal_equations(p: &Params, s: &Scratch) -> Normal {
+    let pf: [f32; N] = core::array::from_fn(|k| p[k] as f32);
+    let mut jtj = [[0f32; LANES]; PAIRS];
+    let mut jtr = [[0f32; LANES]; N];
+    let mut cost = [0f32; LANES];
+    let chunks =
+        s.x.chunks_exact(LANES)
+            .zip(s.y.chunks_exact(LANES))
+            .zip(s.v.chunks_exact(LANES).zip(s.weight.chunks_exact(LANES)));
+    for ((x, y), (v, w)) in chunks {
+        let mut g = [[0f32; LANES]; N];
+        let mut r = [0f32; LANES];
+        for l in 0..LANES {
+            let (value, gl) = model(&pf, x[l], y[l]);
+            r[l] = (v[l] - value) * w[l];
+            for k in 0..N {
+                g[k][l] = gl[k] * w[l];
+            }
+        }
+        for l in 0..LANES {
+            cost[l] += r[l] * r[l];
+        }
+        let mut pair = 0;
+        for a in 0..N {
+            for l in 0..LANES {
+                jtr[a][l] += g[a][l] * r[l];
+            }
+            for b in a..N {
+                for l in 0..LANES {
+                    jtj[pair][l] += g[a][l] * g[b][l];
+                }
+                pair += 1;
+            }
+        }
+    }
+    let sum = |lanes: &[f32; LANES]| lanes.iter().map(|&v| f64::from(v)).sum::<f64>();
+    let mut m = SMatrix::<f64, N, N>::zeros();
+    let mut pair = 0;
+    for a in 0..N {
+        for b in a..N {
+            m[(a, b)] = sum(&jtj[pair]);
+            m[(b, a)] = m[(a, b)];
+            pair += 1;
+        }
+    }
+    Normal {
+        jtj: m,
+        jtr: Params::from_fn(|k, _| sum(&jtr[k])),
+        cost: sum(&cost),
+    }
+}
+
+/// The starting ellipse (q11, q12, q22) and amplitude: the second moments of the window's
+/// pixels weighted by their height above the background, counting only those above a tenth of
+/// the peak (noise far out would inflate the moments). For a disc of radius R blurred by σ these
+/// are about R²/4 + 0.8 σ² (the blur's share with the cut tails), σ ≈ 1 px; the amplitude is the
+/// flux over the ellipse's area. Falls back on the blob's thresholded moments.
+fn start_ellipse(s: &Scratch, blob: &Blob, background: f64) -> Option<([f64; 3], f64)> {
+    let cut = 0.1 * blob.peak;
+    let (mut m0, mut mx, mut my, mut mxx, mut mxy, mut myy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for (((&x, &y), &v), &weight) in s.x.iter().zip(&s.y).zip(&s.v).zip(&s.weight) {
+        let w = f64::from(v) - background;
+        if weight > 0.0 && w > cut {
+            let (x, y) = (f64::from(x), f64::from(y));
+            m0 += w;
+            mx += w * x;
+            my += w * y;
+            mxx += w * x * x;
+            mxy += w * x * y;
+            myy += w * y * y;
+        }
+    }
+    let (mx, my) = (mx / m0, my / m0);
+    let weighted = (
+        mxx / m0 - mx * mx - 0.8,
+        mxy / m0 - mx * my,
+        myy / m0 - my * my - 0.8,
+    );
+    let ellipse = |(a, b, c): (f64, f64, f64)| {
+        let det = 4.0 * (a * c - b * b);
+        (det > 0.0 && a > 0.0).then(|| ([c / det, -b / det, a / det], det))
+    };
+    match ellipse(weighted) {
+        Some((q, det)) => Some((q, m0 / (std::f64::consts::PI * det.sqrt()))),
+        None => ellipse(blob.cov).map(|(q, _)| (q, blob.peak)),
+    }
 }
 
 /// Fit the template around `blob`. The window is the blob's box grown by `margin` pixels;
@@ -123,85 +291,81 @@ pub fn fit_template<P: Copy + Into<f64>>(
     background: f64,
     margin: usize,
     exclude: &[[usize; 4]],
+    scratch: &mut Scratch,
 ) -> Option<EllipseFit> {
     let [c0, r0, c1, r1] = blob.bbox;
     let (wc0, wr0) = (c0.saturating_sub(margin), r0.saturating_sub(margin));
     let wc1 = (c1 + margin).min(img.width - 1);
     let wr1 = (r1 + margin).min(img.height - 1);
     let (xr, yr) = blob.gravity;
-    let mut samples = Vec::with_capacity((wc1 - wc0 + 1) * (wr1 - wr0 + 1));
+    scratch.clear();
     for r in wr0..=wr1 {
         for c in wc0..=wc1 {
             let excluded = exclude
                 .iter()
                 .any(|b| c >= b[0] && c <= b[2] && r >= b[1] && r <= b[3]);
             if !excluded {
-                samples.push(Sample {
-                    x: c as f64 - xr,
-                    y: r as f64 - yr,
-                    v: img.signed(c, r, polarity),
-                });
+                let v = img.signed(c, r, polarity);
+                scratch.push(
+                    (c as f64 - xr) as f32,
+                    (r as f64 - yr) as f32,
+                    v as f32,
+                    1.0,
+                );
             }
         }
     }
-    // Start: the gravity centre, the moments' ellipse (4·cov for a filled ellipse), peak, s = 1.
-    let (a, b, c) = blob.cov;
-    let det = 4.0 * (a * c - b * b);
-    if det.is_nan() || det <= 0.0 || samples.len() <= N {
+    let count = scratch.x.len();
+    while !scratch.x.len().is_multiple_of(LANES) {
+        scratch.push(0.0, 0.0, 0.0, 0.0);
+    }
+    // Start: the gravity centre, the ellipse and amplitude from the window's moments.
+    let (q, amplitude) = start_ellipse(scratch, blob, background)?;
+    if count <= N {
         return None;
     }
     let mut p = Params::from_column_slice(&[
-        0.0,
-        0.0,
-        c / det,
-        -b / det,
-        a / det,
-        blob.peak,
-        1.0,
-        background,
-        0.0,
-        0.0,
+        0.0, 0.0, q[0], q[1], q[2], amplitude, 1.0, background, 0.0, 0.0,
     ]);
     let mut lambda = 1e-3;
-    let mut current = cost(&p, &samples);
-    for _ in 0..30 {
-        let mut jtj = SMatrix::<f64, N, N>::zeros();
-        let mut jtr = Params::zeros();
-        for s in &samples {
-            let (v, g) = model(&p, s);
-            jtj.syger(1.0, &g, &g, 1.0);
-            jtr += g * (s.v - v);
+    let mut current = normal_equations(&p, scratch);
+    let mut passes = 1;
+    for _ in 0..MAX_ITERATIONS {
+        let mut damped = current.jtj;
+        for k in 0..N {
+            damped[(k, k)] *= 1.0 + lambda;
         }
-        let mut improved = false;
-        for _ in 0..10 {
-            let mut damped = jtj;
-            for k in 0..N {
-                damped[(k, k)] *= 1.0 + lambda;
-            }
-            let Some(chol) = damped.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let step = chol.solve(&jtr);
-            let trial = p + step;
-            let trial_cost = if trial[6] > 0.05 {
-                cost(&trial, &samples)
-            } else {
-                f64::INFINITY
-            };
-            if trial_cost < current {
-                let moved = step[0].hypot(step[1]);
-                p = trial;
-                current = trial_cost;
-                lambda = (lambda * 0.3).max(1e-9);
-                improved = moved > 1e-5;
-                break;
-            }
+        let Some(chol) = damped.cholesky() else {
             lambda *= 10.0;
+            continue;
+        };
+        let step = chol.solve(&current.jtr);
+        let trial = p + step;
+        if trial[6] <= 0.05 {
+            lambda *= 10.0;
+            continue;
         }
-        if !improved {
+        // Converged (the centre moves less than the tolerance, the ellipse, amplitude and edge
+        // by less than 10⁻³ of themselves): the last Gauss-Newton step is taken without another
+        // pass.
+        let shape = (step[2].abs() + step[3].abs() + step[4].abs()) / (p[2].abs() + p[4].abs());
+        let settled = shape < 1e-2 && step[5].abs() < 1e-2 * p[5] && step[6].abs() < 1e-2 * p[6];
+        if step[0].hypot(step[1]) < CENTRE_TOLERANCE && settled && lambda < 1e-2 {
+            p = trial;
             break;
         }
+        let at_trial = normal_equations(&trial, scratch);
+        passes += 1;
+        if at_trial.cost >= current.cost {
+            lambda *= 10.0;
+            if lambda > 1e6 {
+                break;
+            }
+            continue;
+        }
+        p = trial;
+        current = at_trial;
+        lambda = (lambda * 0.3).max(1e-9);
     }
     // The ellipse's axes from Q's eigenvalues: semi-axis = 1/√λ.
     let (q11, q12, q22) = (p[2], p[3], p[4]);
@@ -224,7 +388,8 @@ pub fn fit_template<P: Copy + Into<f64>>(
         angle: 0.5 * (-2.0 * q12).atan2(q22 - q11),
         amplitude: p[5],
         edge: p[6],
-        rms: (current / samples.len() as f64).sqrt(),
+        rms: (current.cost / count as f64).sqrt(),
+        passes,
     })
 }
 
@@ -232,25 +397,44 @@ pub fn fit_template<P: Copy + Into<f64>>(
 mod tests {
     use super::*;
 
-    /// The analytic gradient of the template agrees with central differences.
+    /// The analytic gradient of the template agrees with central differences (of the f32
+    /// template: steps of 2·10⁻³ keep its rounding, about 10⁻⁵ of the value, near 10⁻³).
     #[test]
     fn gradient_matches_differences() {
-        let p =
-            Params::from_column_slice(&[0.3, -0.2, 0.05, 0.01, 0.08, 150.0, 1.1, 40.0, 0.1, -0.2]);
+        let p = [0.3, -0.2, 0.05, 0.01, 0.08, 150.0, 1.1, 40.0, 0.1, -0.2];
         for (x, y) in [(3.0, 1.0), (-2.5, 2.0), (0.5, -4.0), (1.0, 1.0)] {
-            let s = Sample { x, y, v: 0.0 };
-            let (_, g) = model(&p, &s);
+            let (_, g) = model(&p, x, y);
             for k in 0..N {
-                let h = 1e-6 * (1.0 + p[k].abs());
+                let h = 2e-3 * (1.0 + p[k].abs());
                 let (mut a, mut b) = (p, p);
                 a[k] += h;
                 b[k] -= h;
-                let num = (model(&a, &s).0 - model(&b, &s).0) / (2.0 * h);
+                let num = (model(&a, x, y).0 - model(&b, x, y).0) / (2.0 * h);
                 assert!(
-                    (num - g[k]).abs() < 1e-5 * (1.0 + num.abs()),
+                    (num - g[k]).abs() < 1e-2 * (1.0 + num.abs()),
                     "param {k} at ({x}, {y}): {num} vs {}",
                     g[k]
                 );
+            }
+        }
+    }
+
+    /// The polynomial exp and normal CDF against the library's, over the range the fit uses.
+    #[test]
+    fn fast_exp_and_cdf() {
+        for k in 0..=2000 {
+            let x = f64::from((-0.04 * k as f64) as f32);
+            let fast = f64::from(exp_neg(x as f32));
+            assert!((fast - x.exp()).abs() <= 1e-6 * x.exp(), "exp({x}): {fast}");
+            for t in [x / 8.0, -x / 8.0] {
+                let (cdf, pdf) = normal_cdf_pdf(t as f32);
+                let exact = 0.5 * libm::erfc(-t / std::f64::consts::SQRT_2);
+                let density = (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
+                assert!(
+                    (f64::from(cdf) - exact).abs() < 3e-7,
+                    "Φ({t}): {cdf} vs {exact}"
+                );
+                assert!((f64::from(pdf) - density).abs() < 1e-7, "φ({t}): {pdf}");
             }
         }
     }

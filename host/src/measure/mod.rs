@@ -126,76 +126,69 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
             ]
         })
         .collect();
+    // The grown boxes by their first row, to find a window's neighbours by binary search.
+    let mut by_top: Vec<usize> = (0..grown.len()).collect();
+    by_top.sort_unstable_by_key(|&j| grown[j][1]);
+    let tops: Vec<usize> = by_top.iter().map(|&j| grown[j][1]).collect();
+    let tallest = grown.iter().map(|g| g[3] - g[1]).max().unwrap_or(0);
     // One blob's verdict: shape tests, then the centre.
-    let centre = |i: usize| -> std::result::Result<Target, (Blob, Rejection)> {
-        let blob = &blobs[i];
-        if let Some(why) = check_shape(blob, d, img.width, img.height) {
-            return Err((*blob, why));
-        }
-        let (gc, gr) = blob.gravity;
-        if params.method == CentreMethod::Gravity {
-            return Ok(Target {
-                col: gc,
-                row: gr,
-                blob: *blob,
-                fit: None,
-            });
-        }
-        let m = params.margin;
-        let window = [
-            blob.bbox[0].saturating_sub(m),
-            blob.bbox[1].saturating_sub(m),
-            blob.bbox[2] + m,
-            blob.bbox[3] + m,
-        ];
-        let exclude: Vec<[usize; 4]> = grown
-            .iter()
-            .enumerate()
-            .filter(|&(j, g)| {
-                j != i
-                    && g[0] <= window[2]
-                    && g[2] >= window[0]
-                    && g[1] <= window[3]
-                    && g[3] >= window[1]
-            })
-            .map(|(_, g)| *g)
-            .collect();
-        fit::fit_template(img, d.polarity, blob, background.at(gc, gr), m, &exclude)
-            .filter(|f| {
-                let allowed = params.max_rms_sigma * sigma.max(img.dn)
-                    + params.max_rms_fraction * f.amplitude;
-                let moved = (f.col - gc).hypot(f.row - gr);
-                f.rms <= allowed && moved <= params.max_centre_shift
-            })
-            .map(|f| Target {
-                col: f.col,
-                row: f.row,
-                blob: *blob,
-                fit: Some(f),
-            })
-            .ok_or((*blob, Rejection::Fit))
-    };
-    // The blobs are independent: split them over the cores, keep their order.
-    let count = blobs.len();
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let chunk = count.div_ceil(threads).max(1);
-    let verdicts: Vec<_> = std::thread::scope(|s| {
-        let handles: Vec<_> = (0..count)
-            .step_by(chunk)
-            .map(|start| {
-                let centre = &centre;
-                s.spawn(move || {
-                    (start..(start + chunk).min(count))
-                        .map(centre)
-                        .collect::<Vec<_>>()
+    let centre =
+        |scratch: &mut Scratch, i: usize| -> std::result::Result<Target, (Blob, Rejection)> {
+            let blob = &blobs[i];
+            if let Some(why) = check_shape(blob, d, img.width, img.height) {
+                return Err((*blob, why));
+            }
+            let (gc, gr) = blob.gravity;
+            if params.method == CentreMethod::Gravity {
+                return Ok(Target {
+                    col: gc,
+                    row: gr,
+                    blob: *blob,
+                    fit: None,
+                });
+            }
+            let m = params.margin;
+            let window = [
+                blob.bbox[0].saturating_sub(m),
+                blob.bbox[1].saturating_sub(m),
+                blob.bbox[2] + m,
+                blob.bbox[3] + m,
+            ];
+            let first = tops.partition_point(|&t| t + tallest < window[1]);
+            let last = tops.partition_point(|&t| t <= window[3]);
+            scratch.exclude.clear();
+            scratch.exclude.extend(
+                by_top[first..last]
+                    .iter()
+                    .filter(|&&j| {
+                        let g = &grown[j];
+                        j != i
+                            && g[0] <= window[2]
+                            && g[2] >= window[0]
+                            && g[1] <= window[3]
+                            && g[3] >= window[1]
+                    })
+                    .map(|&j| grown[j]),
+            );
+            let background = background.at(gc, gr);
+            let Scratch { exclude, fit } = scratch;
+            fit::fit_template(img, d.polarity, blob, background, m, exclude, fit)
+                .filter(|f| {
+                    let allowed = params.max_rms_sigma * sigma.max(img.dn)
+                        + params.max_rms_fraction * f.amplitude;
+                    let moved = (f.col - gc).hypot(f.row - gr);
+                    f.rms <= allowed && moved <= params.max_centre_shift
                 })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().expect("a measuring thread panicked"))
-            .collect()
-    });
+                .map(|f| Target {
+                    col: f.col,
+                    row: f.row,
+                    blob: *blob,
+                    fit: Some(f),
+                })
+                .ok_or((*blob, Rejection::Fit))
+        };
+    // The blobs are independent: spread them over the cores, keep their order.
+    let verdicts = parallel_map(blobs.len(), centre);
     let mut targets = Vec::new();
     let mut rejected = Vec::new();
     for verdict in verdicts {
@@ -209,6 +202,50 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
         rejected,
         noise_sigma: sigma / img.dn,
     }
+}
+
+/// A measuring thread's reused buffers: the neighbours' boxes and the fit's window.
+#[derive(Default)]
+struct Scratch {
+    exclude: Vec<[usize; 4]>,
+    fit: fit::Scratch,
+}
+
+/// `f(scratch, i)` for i in 0..count on all cores (threads take blocks of 16 as they finish,
+/// each with its own scratch), the results in the order of i.
+pub(crate) fn parallel_map<S: Default, T: Send>(
+    count: usize,
+    f: impl Fn(&mut S, usize) -> T + Sync,
+) -> Vec<T> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    const BLOCK: usize = 16;
+    let next = AtomicUsize::new(0);
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let work = || {
+        let mut scratch = S::default();
+        let mut done = Vec::new();
+        loop {
+            let start = next.fetch_add(BLOCK, Ordering::Relaxed);
+            if start >= count {
+                return done;
+            }
+            for i in start..(start + BLOCK).min(count) {
+                done.push((i, f(&mut scratch, i)));
+            }
+        }
+    };
+    let mut all: Vec<(usize, T)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (1..threads.min(count.div_ceil(BLOCK)))
+            .map(|_| s.spawn(work))
+            .collect();
+        let mut all = work();
+        for h in handles {
+            all.extend(h.join().expect("a measuring thread panicked"));
+        }
+        all
+    });
+    all.sort_unstable_by_key(|(i, _)| *i);
+    all.into_iter().map(|(_, t)| t).collect()
 }
 
 /// A decoded image: 8- and 16-bit grayscale are kept as decoded; colour is converted to 16-bit
