@@ -9,7 +9,6 @@ mod images_cli;
 mod images_to_points;
 mod link_errors;
 mod link_in_process;
-mod link_noise;
 mod measure;
 mod measure_cli;
 mod projector_cli;
