@@ -253,7 +253,7 @@ fn fuzz_a_million_frames() {
                 let mut f = valid.clone();
                 for _ in 0..=rng.below(3) {
                     let at = rng.below(f.len() as u64) as usize;
-                    f[at] = rng.next() as u8;
+                    f[at] = rng.next_u64() as u8;
                 }
                 f
             }

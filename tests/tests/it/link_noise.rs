@@ -32,7 +32,7 @@ fn damage(frame: &[u8], rng: &mut Rng) -> Vec<u8> {
         }
         // An inserted byte (a zero too: the frame splits).
         2 => {
-            f.insert(rng.below(body as u64) as usize, rng.next() as u8);
+            f.insert(rng.below(body as u64) as usize, rng.next_u64() as u8);
         }
         // Truncated, the rest lost (the next frame's delimiter ends it).
         3 => f.truncate(1 + rng.below(body as u64) as usize),
