@@ -38,7 +38,14 @@ pub type AnyDevice = Device<Box<dyn Transport>>;
 pub fn connect(args: &LinkArgs) -> Result<AnyDevice> {
     let transport: Box<dyn Transport> = match (&args.port, &args.qemu) {
         (Some(_), Some(_)) => bail!("--port and --qemu exclude each other"),
-        (Some(port), None) => Box::new(Serial::open(port, args.baud)?),
+        (Some(port), None) => {
+            // A board's UART receive is polled between frames, not while it answers: one
+            // request in flight (QEMU's UART holds the line instead, so pipelining works there).
+            let serial = Serial::open(port, args.baud)?;
+            return Ok(Device::new(Box::new(serial) as Box<dyn Transport>)
+                .with_timeout(args.timeout)
+                .with_window(1));
+        }
         (None, Some(elf)) => {
             if !elf.exists() {
                 bail!(

@@ -88,8 +88,7 @@ fn damaged_frames_are_sent_again() {
         damage,
     };
     // Sends 2 and 4 (the one chunk and the commit) arrive damaged once each.
-    let mut device =
-        Device::new(flaky(|n| n == 2 || n == 4)).with_timeout(Duration::from_millis(10));
+    let mut device = Device::new(flaky(|n| n == 2 || n == 4)).with_timeout(Duration::from_secs(2));
     let summary = device.upload(&paper_rig(), 0xF1A).unwrap();
     assert_eq!(summary.fingerprint, 0xF1A);
     let sends = device.into_transport().sends;
@@ -105,7 +104,7 @@ fn damaged_frames_are_sent_again() {
     assert_eq!(sends, 1 + chunks + 1 + 1 + 2);
     // A line that damages everything: the device's seq-0 answers are not taken for the
     // request's; after TRIES sends the client says what it saw.
-    let mut device = Device::new(flaky(|_| true)).with_timeout(Duration::from_millis(10));
+    let mut device = Device::new(flaky(|_| true)).with_timeout(Duration::from_secs(2));
     match device.info() {
         Err(DeviceError::NoValidAnswer {
             tries: deltaz_host::link::TRIES,

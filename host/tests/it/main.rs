@@ -13,7 +13,6 @@ mod images_to_points;
 mod json_output;
 mod link_errors;
 mod link_in_process;
-mod link_noise;
 mod measure;
 mod measure_cli;
 mod projector_cli;

@@ -9,6 +9,7 @@ use deltaz_shared::protocol::{
     RequestBody, Response, ResponseBody, WireError, CHUNK_SIZE, MAX_FRAME,
 };
 use deltaz_shared::rig::Method;
+use deltaz_tests::Rng;
 use serde::Serialize;
 use std::time::Duration;
 
@@ -226,26 +227,6 @@ fn every_bad_frame_gets_its_answer() {
     serves(&mut device, 32);
 }
 
-/// xorshift64*: a seeded generator, enough for fuzzing.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-
-    fn bytes(&mut self, n: usize) -> Vec<u8> {
-        (0..n).map(|_| self.next() as u8).collect()
-    }
-}
-
 /// 10⁶ inputs of three kinds (random bytes; random payloads with a good CRC, so they reach the
 /// message decoder; valid frames with a few bytes changed): every frame gets exactly one answer,
 /// and every 10,000 inputs a good request is still served.
@@ -272,7 +253,7 @@ fn fuzz_a_million_frames() {
                 let mut f = valid.clone();
                 for _ in 0..=rng.below(3) {
                     let at = rng.below(f.len() as u64) as usize;
-                    f[at] = rng.next() as u8;
+                    f[at] = rng.next_u64() as u8;
                 }
                 f
             }

@@ -5,4 +5,5 @@ mod device_identify;
 mod device_qemu;
 mod firmware_smoke;
 mod link_budget;
+mod link_noise;
 mod upload_power_cut;
