@@ -12,9 +12,10 @@ use nalgebra::{Matrix3, Vector3};
 use std::path::Path;
 use std::process::Command;
 
-fn deltaz(dir: &Path, args: &[&str]) {
+fn deltaz(dir: &Path, command: &str) {
+    let args: Vec<&str> = command.split_whitespace().collect();
     let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
+        .args(&args)
         .current_dir(dir)
         .output()
         .unwrap();
@@ -74,31 +75,9 @@ fn check(scenario: &Scenario, largest_refit_px: f64) {
     write_simulation(d, &simulate(scenario, 4)).unwrap();
     deltaz(
         d,
-        &[
-            "calibrate",
-            "camera",
-            "--init",
-            "camera_init.json",
-            "--obs",
-            "camera_obs.csv",
-            "--control",
-            "camera_control.csv",
-            "--out",
-            "camera.json",
-            "--k2",
-        ],
+        "calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json --k2",
     );
-    deltaz(
-        d,
-        &[
-            "export",
-            "opencv",
-            "--camera",
-            "camera.json",
-            "--out",
-            "camera.yml",
-        ],
-    );
+    deltaz(d, "export opencv --camera camera.json --out camera.yml");
     let yaml = std::fs::read_to_string(d.join("camera.yml")).unwrap();
     assert!(yaml.starts_with("%YAML:1.0\n---\n"));
     let camera = read_camera(&d.join("camera.json")).unwrap();
@@ -172,45 +151,13 @@ fn from_a_system_file() {
     write_simulation(d, &simulate(&scenario, 2)).unwrap();
     deltaz(
         d,
-        &[
-            "calibrate",
-            "camera",
-            "--init",
-            "camera_init.json",
-            "--obs",
-            "camera_obs.csv",
-            "--control",
-            "camera_control.csv",
-            "--out",
-            "camera.json",
-        ],
+        "calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json",
     );
     deltaz(
         d,
-        &[
-            "calibrate",
-            "projector",
-            "--camera",
-            "camera.json",
-            "--control",
-            "plate_control.csv",
-            "--obs",
-            "plate_obs.csv",
-            "--out",
-            "system.json",
-        ],
+        "calibrate projector --camera camera.json --control plate_control.csv --obs plate_obs.csv --out system.json",
     );
-    deltaz(
-        d,
-        &[
-            "export",
-            "opencv",
-            "--system",
-            "system.json",
-            "--out",
-            "system.yml",
-        ],
-    );
+    deltaz(d, "export opencv --system system.json --out system.yml");
     let yaml = std::fs::read_to_string(d.join("system.yml")).unwrap();
     assert!(yaml.contains("image_names: [ \"rig\" ]"), "{yaml}");
     let extrinsic = yaml_numbers(&yaml, "extrinsic_parameters");

@@ -9,9 +9,10 @@ use std::path::Path;
 use std::process::Command;
 
 /// Runs `deltaz ARGS --json --quiet` in `dir`: its JSON, after checking stderr is empty.
-fn json(dir: &Path, args: &[&str]) -> Value {
+fn json(dir: &Path, command: &str) -> Value {
+    let args: Vec<&str> = command.split_whitespace().collect();
     let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
+        .args(&args)
         .args(["--json", "--quiet"])
         .current_dir(dir)
         .output()
@@ -37,18 +38,7 @@ fn json_figures_and_ply_round_trip() {
 
     let camera = json(
         d,
-        &[
-            "calibrate",
-            "camera",
-            "--init",
-            "camera_init.json",
-            "--obs",
-            "camera_obs.csv",
-            "--control",
-            "camera_control.csv",
-            "--out",
-            "camera.json",
-        ],
+        "calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json",
     );
     let f = camera["inner"]["f"].as_f64().unwrap();
     let sf = camera["sigma"]["f"].as_f64().unwrap();
@@ -57,15 +47,7 @@ fn json_figures_and_ply_round_trip() {
 
     let poses = json(
         d,
-        &[
-            "resect",
-            "--camera",
-            "true.json",
-            "--obs",
-            "plate_obs.csv",
-            "--control",
-            "plate_control.csv",
-        ],
+        "resect --camera true.json --obs plate_obs.csv --control plate_control.csv",
     );
     // Table 2's 1st plate image: Z0 1842.675 mm.
     let z0 = poses["stations"][0]["Z0"].as_f64().unwrap();
@@ -73,20 +55,7 @@ fn json_figures_and_ply_round_trip() {
 
     let system = json(
         d,
-        &[
-            "calibrate",
-            "projector",
-            "--camera",
-            "true.json",
-            "--control",
-            "plate_control.csv",
-            "--obs",
-            "plate_obs.csv",
-            "--out",
-            "system.json",
-            "--image-sigma-px",
-            "0.1",
-        ],
+        "calibrate projector --camera true.json --control plate_control.csv --obs plate_obs.csv --out system.json --image-sigma-px 0.1",
     );
     assert_eq!(system["rays"], 440);
     let fingerprint = system["fingerprint"].as_str().unwrap().to_owned();
@@ -101,17 +70,7 @@ fn json_figures_and_ply_round_trip() {
     std::fs::write(d.join("p1.csv"), p1).unwrap();
     let cloud = json(
         d,
-        &[
-            "reconstruct",
-            "--system",
-            "system.json",
-            "--obs",
-            "p1.csv",
-            "--out",
-            "p1.ply",
-            "--csv",
-            "p1_points.csv",
-        ],
+        "reconstruct --system system.json --obs p1.csv --out p1.ply --csv p1_points.csv",
     );
     let points = cloud["points"].as_u64().unwrap();
     assert!(points > 400, "{points}");
@@ -122,13 +81,7 @@ fn json_figures_and_ply_round_trip() {
     assert!(header.contains("comment frame: rig frame") && !header.contains("property uint frame"));
     let same = json(
         d,
-        &[
-            "compare",
-            "--reconstructed",
-            "p1.ply",
-            "--reference",
-            "p1_points.csv",
-        ],
+        "compare --reconstructed p1.ply --reference p1_points.csv",
     );
     assert!(
         (same["lambda"].as_f64().unwrap() - 1.0).abs() < 1e-9,
@@ -147,16 +100,7 @@ fn json_figures_and_ply_round_trip() {
     // Three images merged: a `frame` property tells them apart.
     json(
         d,
-        &[
-            "reconstruct",
-            "--system",
-            "system.json",
-            "--obs",
-            "plate_obs.csv",
-            "--out",
-            "all.ply",
-            "--ascii",
-        ],
+        "reconstruct --system system.json --obs plate_obs.csv --out all.ply --ascii",
     );
     let all = std::fs::read_to_string(d.join("all.ply")).unwrap();
     assert!(all.contains("property uint frame\n"));
