@@ -261,3 +261,4 @@ mod cli {
         assert!(count > 1000, "{count} points");
     }
 }
+
