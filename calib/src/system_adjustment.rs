@@ -126,39 +126,59 @@ pub struct AdjustedRay {
     pub cross: DMatrix<f64>,
     /// RMS of its dots' image residuals (px).
     pub rms_px: f64,
+    /// RMS distance of its plate points from the line (mm).
+    pub miss_rms: f64,
+    /// Largest distance of its plate points from the line (mm).
+    pub miss_max: f64,
 }
 
 impl AdjustedRay {
     /// The unit direction towards the scene (−z) and the offset from the centre.
     pub fn line(&self) -> (Vector3<f64>, Vector3<f64>) {
-        let u = Vector3::new(self.params[0], self.params[1], 1.0);
-        let offset = match self.params.len() {
-            4 => Vector3::new(self.params[2], self.params[3], 0.0),
-            _ => Vector3::zeros(),
-        };
-        (-u.normalize(), offset)
+        line_of(&Vector3::zeros(), &self.params)
     }
 }
 
-/// The adjusted system.
-#[derive(Debug, Clone)]
-pub struct SystemAdjustment {
+/// A ray's unit direction and a point on it, from the centre and its parameters.
+fn line_of(centre: &Vector3<f64>, params: &[f64]) -> (Vector3<f64>, Vector3<f64>) {
+    let offset = match params.len() {
+        4 => Vector3::new(params[2], params[3], 0.0),
+        _ => Vector3::zeros(),
+    };
+    (
+        -Vector3::new(params[0], params[1], 1.0).normalize(),
+        centre + offset,
+    )
+}
+
+/// What a reconstructed point and its σ depend on: the camera, the projector in the camera
+/// system, and their covariance (the core [free inner | P] and per ray its own block and its
+/// covariance with the core), with the image noise of the dots. Stored in `system.json`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SystemModel {
     /// Inner orientation.
     pub inner: InnerOrientation<f64>,
     /// Which inner parameters were adjusted (the core's first entries, in this order).
     pub inner_free: Vec<usize>,
-    /// Plate image poses.
-    pub poses: Vec<ExteriorOrientation<f64>>,
     /// Projector centre (camera system, mm).
     pub centre: Vector3<f64>,
     /// The rays, sorted by id.
     pub rays: Vec<AdjustedRay>,
     /// Covariance of the core [free inner | P].
     pub core_covariance: DMatrix<f64>,
-    /// Estimated image noise of the plate targets (px).
-    pub sigma_targets_px: f64,
     /// Estimated image noise of the dots (px).
     pub sigma_dots_px: f64,
+}
+
+/// The adjusted system.
+#[derive(Debug, Clone)]
+pub struct SystemAdjustment {
+    /// The camera and projector with their covariance.
+    pub model: SystemModel,
+    /// Plate image poses.
+    pub poses: Vec<ExteriorOrientation<f64>>,
+    /// Estimated image noise of the plate targets (px).
+    pub sigma_targets_px: f64,
     /// Redundancy of the targets and the dots.
     pub redundancy: [f64; 2],
     /// Rays seen on one plate only (determined by the central model, without redundancy).
@@ -169,7 +189,7 @@ pub struct SystemAdjustment {
     pub iterations: usize,
 }
 
-impl SystemAdjustment {
+impl SystemModel {
     /// σ of the projector centre (mm).
     pub fn centre_sigma(&self) -> Vector3<f64> {
         let k = self.inner_free.len();
@@ -510,6 +530,31 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
             rms[*r].1 += 1;
         }
     }
+    // Miss distances: each dot's camera ray met with its adjusted plate, from the adjusted line.
+    let inner_adjusted = inner_from_array(state.inner);
+    let mut misses: Vec<Vec<f64>> = vec![Vec::new(); ray_ids.len()];
+    for (k, plate) in plates.iter().enumerate() {
+        let camera = deltaz_shared::collinearity::Camera {
+            grid: input.grid,
+            inner: inner_adjusted,
+            exterior: state.poses[k],
+        };
+        let plane = crate::projector_calibration::Plane::at_z(0.0);
+        for dot in &plate.dots {
+            let Some(&r) = ray_index.get(&dot.id) else {
+                continue;
+            };
+            if let Ok(x) =
+                crate::projector_calibration::dot_on_plate(&camera, &plane, dot.col, dot.row)
+            {
+                let line = line_of(&state.centre, &state.rays[r]);
+                let x = state.poses[k].world_to_camera(&x);
+                misses[r].push(crate::projector_calibration::miss_distance(
+                    &line.1, &line.0, &x,
+                ));
+            }
+        }
+    }
     let adjusted = ray_ids
         .iter()
         .enumerate()
@@ -523,18 +568,24 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
                 covariance: own,
                 cross,
                 rms_px: (rms[r].0 / (2 * rms[r].1.max(1)) as f64).sqrt() / px,
+                miss_rms: (misses[r].iter().map(|m| m * m).sum::<f64>()
+                    / misses[r].len().max(1) as f64)
+                    .sqrt(),
+                miss_max: misses[r].iter().copied().fold(0.0, f64::max),
             }
         })
         .collect();
     Ok(SystemAdjustment {
-        inner: inner_from_array(state.inner),
-        inner_free,
+        model: SystemModel {
+            inner: inner_from_array(state.inner),
+            inner_free,
+            centre: state.centre,
+            rays: adjusted,
+            core_covariance,
+            sigma_dots_px: sigma[1] / px,
+        },
         poses: state.poses,
-        centre: state.centre,
-        rays: adjusted,
-        core_covariance,
         sigma_targets_px: sigma[0] / px,
-        sigma_dots_px: sigma[1] / px,
         redundancy: [red[0], red[1]],
         single_plane,
         left_out,
@@ -801,7 +852,7 @@ pub struct SystemPoint {
     pub calibration: Matrix3<f64>,
 }
 
-impl SystemAdjustment {
+impl SystemModel {
     /// A dot reconstructed in the camera system with its covariance: from the image noise of
     /// the dot (the estimated σ of the dots) and from the calibration (inner orientation,
     /// centre and the ray's parameters with all their correlations), first-order by central

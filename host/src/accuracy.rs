@@ -16,9 +16,7 @@ use crate::reconstruct::{calibration_covariance, covariance, reconstruct};
 use crate::simulate::Simulation;
 use crate::system::{RayCovariances, SystemContent, SystemRig};
 use anyhow::{Context, Result};
-use deltaz_calib::system_adjustment::{
-    adjust_system, CameraPrior, PlateObservations, SystemAdjustment, SystemInput,
-};
+use deltaz_calib::system_adjustment::{adjust_system, CameraPrior, SystemAdjustment, SystemInput};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::rig::Method;
@@ -260,15 +258,10 @@ pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, Came
         &options,
     )?;
     let cal = crate::bundle::calibrate(problem, &options)?;
-    let free = cal.problem.free.inner;
-    let states: Vec<usize> = (0..free.len())
-        .filter_map(|k| cal.problem.state_index_inner(k))
-        .collect();
-    let cov = &cal.solution.camera_covariance;
-    let covariance = nalgebra::DMatrix::from_fn(states.len(), states.len(), |a, b| {
-        cov[(states[a], states[b])]
-    });
-    Ok((cal.problem.inner, CameraPrior { free, covariance }))
+    Ok((
+        cal.problem.inner,
+        crate::camera_calibration::camera_prior(&cal),
+    ))
 }
 
 /// The whole-system adjustment on a simulation: every plate image but `held_out` resected with
@@ -285,45 +278,13 @@ pub fn adjust_simulation(
     let path = std::path::Path::new("plate_obs.csv");
     let resected =
         crate::plates::resect_all(path, &grid, inner, &sim.plate_obs, &sim.plate_control)?;
-    let index: std::collections::HashMap<&str, usize> = sim
-        .plate_control
+    let kept: Vec<(String, crate::resection::ResectionResult)> = resected
+        .results
         .iter()
-        .enumerate()
-        .map(|(j, c)| (c.point.as_str(), j))
+        .filter(|(image, _)| held_out.is_none_or(|h| *image != format!("p{}", h + 1)))
+        .cloned()
         .collect();
-    let mut plates = Vec::new();
-    for (image, r) in &resected.results {
-        if held_out.is_some_and(|h| *image == format!("p{}", h + 1)) {
-            continue;
-        }
-        let mine = sim.plate_obs.iter().filter(|o| &o.image == image);
-        let targets = mine
-            .clone()
-            .filter(|o| o.kind == crate::io::observations::PointKind::Control)
-            .map(|o| {
-                (
-                    nalgebra::Vector2::new(o.col, o.row),
-                    index[o.point.as_str()],
-                )
-            })
-            .collect();
-        let dots = mine
-            .filter_map(|o| {
-                o.ray_id()
-                    .map(|id| crate::projector_calibration::DotObservation {
-                        id,
-                        col: o.col,
-                        row: o.row,
-                    })
-            })
-            .collect();
-        plates.push(PlateObservations {
-            image: image.clone(),
-            start: r.exterior,
-            targets,
-            dots,
-        });
-    }
+    let plates = crate::plates::plate_observations(&sim.plate_obs, &sim.plate_control, &kept)?;
     let input = SystemInput {
         grid,
         inner: *inner,
@@ -368,7 +329,7 @@ pub fn system_against_truth(
         .iter()
         .filter(|o| o.image == label)
         .filter_map(|o| o.ray_id().map(|id| (id, o)))
-        .filter(|(id, _)| adjustment.rays.iter().any(|r| r.id == *id))
+        .filter(|(id, _)| adjustment.model.rays.iter().any(|r| r.id == *id))
         .map(|(id, o)| {
             let ray = projector
                 .rays
@@ -384,6 +345,7 @@ pub fn system_against_truth(
                 row: o.row,
             };
             let p = adjustment
+                .model
                 .reconstruct(&grid, &dot, method)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             Ok(TruthPoint {

@@ -11,6 +11,7 @@ use deltaz_calib::bundle::problem::{FreeParameters, Problem};
 use deltaz_calib::bundle::{BuildError, Calibration, CalibrationOptions};
 use deltaz_calib::input::Measurement;
 use deltaz_calib::residual::image_residual;
+use deltaz_calib::system_adjustment::CameraPrior;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use std::path::Path;
 
@@ -128,6 +129,21 @@ pub fn camera_file(cal: &Calibration, observations: &[Observation]) -> CameraFil
         rms_px: Some((total.0 / (2 * total.1.max(1)) as f64).sqrt() / px),
         rejected,
         iterations: Some(cal.iterations),
+    }
+}
+
+/// A camera calibration as the whole-system adjustment's prior: the free inner parameters and
+/// their covariance.
+pub fn camera_prior(cal: &Calibration) -> CameraPrior {
+    let states: Vec<usize> = (0..cal.problem.free.inner.len())
+        .filter_map(|k| cal.problem.state_index_inner(k))
+        .collect();
+    let cov = &cal.solution.camera_covariance;
+    CameraPrior {
+        free: cal.problem.free.inner,
+        covariance: nalgebra::DMatrix::from_fn(states.len(), states.len(), |a, b| {
+            cov[(states[a], states[b])]
+        }),
     }
 }
 

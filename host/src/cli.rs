@@ -1,20 +1,24 @@
-//! The bodies of the `compare`, `reconstruct`, `calibrate-projector` and `demo` subcommands
+//! The bodies of the `compare`, `reconstruct`, `calibrate projector`, `calibrate system` and `demo`
+//! subcommands
 //! (argument parsing stays in `main.rs`).
 
+use crate::bundle::{calibrate, CalibrationOptions};
+use crate::camera_calibration::{build_problem, camera_prior};
 use crate::compare::{assess, match_points};
 use crate::io::atomic::{write_all_atomic, write_atomic};
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
-use crate::plates::{plate_images, resect_images};
+use crate::plates::{plate_images, plate_observations, resect_all, resect_images};
 use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
 };
 use crate::reconstruct::reconstruct as reconstruct_points;
 use crate::system::SystemContent;
-use crate::system::SystemFile;
+use crate::system::{SystemFile, Warnings};
 use anyhow::{bail, Result};
+use deltaz_calib::system_adjustment::{adjust_system, SystemInput};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 
@@ -227,17 +231,34 @@ pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
     let obs = read_observations(&args.obs)?;
     let dots = dot_observations(&args.obs, &obs)?;
     let plain: Vec<DotObservation> = dots.iter().map(|(_, d)| *d).collect();
-    let points = reconstruct_points(
+    let model = system
+        .content
+        .model()
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.system.display()))?;
+    let mut points = reconstruct_points(
         &rig,
         &plain,
         args.method.into(),
-        args.sigma_px,
+        args.sigma_px.filter(|_| model.is_none()),
         Some(&calibration),
     )
     .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
+    // With the whole-system adjustment's covariance every point gets its σ (camera, projector
+    // and the dots' estimated image noise, or --sigma-px).
+    if let Some(mut model) = model {
+        if let Some(s) = args.sigma_px {
+            model.sigma_dots_px = s;
+        }
+        for (p, dot) in points.iter_mut().zip(&plain) {
+            let q = model
+                .reconstruct(rig.grid(), dot, args.method.into())
+                .map_err(|e| anyhow::anyhow!("{}: {e}", args.obs.display()))?;
+            p.sigma = Some((q.image + q.calibration).diagonal().map(f64::sqrt));
+        }
+    }
     let csv = args.csv.as_ref().map(|_| {
         let mut text = String::from("image,point,X,Y,Z,miss");
-        if args.sigma_px.is_some() {
+        if points.iter().any(|p| p.sigma.is_some()) {
             text += ",sigma_X,sigma_Y,sigma_Z";
         }
         text.push('\n');
@@ -362,4 +383,104 @@ pub fn calibrate_projector(
             "out": out,
         }),
     )
+}
+
+/// Arguments of `deltaz calibrate system`.
+#[derive(Debug, Clone)]
+pub struct SystemArgs {
+    /// camera_init.json.
+    pub init: PathBuf,
+    /// Field target observations.
+    pub camera_obs: PathBuf,
+    /// Field control (None: free network).
+    pub camera_control: Option<PathBuf>,
+    /// Plate control.
+    pub control: PathBuf,
+    /// Plate observations (targets and dots).
+    pub obs: PathBuf,
+    /// Output system.json.
+    pub out: PathBuf,
+    /// Every ray a free line.
+    pub noncentral: bool,
+    /// Left-out images and rays are errors.
+    pub strict: bool,
+}
+
+/// `deltaz calibrate system`: the camera by bundle adjustment, then the plate images, the
+/// control, the projector and the camera (its calibration as a prior with its covariance) in
+/// one whole-system adjustment; system.json in the camera system with the covariance a point's
+/// σ needs. Images that cannot be resected and rays seen on one plate are listed (in the file
+/// too); `--strict` makes them errors. Nothing is written if anything fails.
+pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
+    let start = read_camera(&args.init)?;
+    let grid = start.grid();
+    let field = read_observations(&args.camera_obs)?;
+    let field_control = match &args.camera_control {
+        Some(path) => read_control(path)?,
+        None => Vec::new(),
+    };
+    let options = CalibrationOptions::default();
+    let problem = build_problem(
+        &args.camera_obs,
+        &grid,
+        &start.inner(),
+        &field,
+        &field_control,
+        &options,
+    )?;
+    let camera = calibrate(problem, &options)
+        .map_err(|e| anyhow::anyhow!("{}: bundle adjustment: {e}", args.camera_obs.display()))?;
+    let inner = camera.problem.inner;
+    let control = read_control(&args.control)?;
+    let observations = read_observations(&args.obs)?;
+    let resected = resect_all(&args.obs, &grid, &inner, &observations, &control)?;
+    let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", args.obs.display());
+    let plates =
+        plate_observations(&observations, &control, &resected.results).map_err(|e| in_file(&e))?;
+    let adjustment = adjust_system(&SystemInput {
+        grid,
+        inner,
+        camera: Some(camera_prior(&camera)),
+        control: &control,
+        plates,
+        noncentral: args.noncentral,
+        image_sigma_px: 0.5,
+    })
+    .map_err(|e| in_file(&e))?;
+    let warnings = Warnings {
+        left_out_images: resected.left_out,
+        single_plane_rays: if args.noncentral {
+            Vec::new()
+        } else {
+            adjustment.single_plane.clone()
+        },
+        left_out_rays: adjustment.left_out.clone(),
+    };
+    if args.strict && !warnings.is_empty() {
+        bail!(
+            "{}: --strict: {}",
+            args.obs.display(),
+            warnings.lines().join("; ")
+        );
+    }
+    for line in warnings.lines() {
+        eprintln!("warning: {line}");
+    }
+    let content = SystemContent::from_adjustment(grid, &adjustment, args.noncentral, warnings);
+    content.rig()?;
+    let file = SystemFile::new(content)?;
+    write_atomic(&args.out, file.to_json()?.as_bytes())?;
+    let m = &adjustment.model;
+    println!(
+        "system: centre {:.3?} mm (σ {:.3?}) in the camera system, {} rays; σ0 targets {:.3} px, \
+         dots {:.3} px; fingerprint {} -> {}",
+        m.centre.as_slice(),
+        m.centre_sigma().as_slice(),
+        m.rays.len(),
+        adjustment.sigma_targets_px,
+        m.sigma_dots_px,
+        file.fingerprint,
+        args.out.display()
+    );
+    Ok(())
 }

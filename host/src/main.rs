@@ -426,6 +426,35 @@ enum CalibrateWhat {
         #[command(flatten)]
         output: cli::Output,
     },
+    /// Camera and projector in one: the camera by bundle adjustment, then plates, control,
+    /// projector and camera (as a prior) in one whole-system adjustment with variance components;
+    /// system.json in the camera system with the covariance a point's σ needs.
+    System {
+        /// The starting sensor: camera_init.json (pixel mapping, approximate f).
+        #[arg(long)]
+        init: PathBuf,
+        /// Target-field observations CSV.
+        #[arg(long)]
+        camera_obs: PathBuf,
+        /// Target-field control CSV (without it the field network is free).
+        #[arg(long)]
+        camera_control: Option<PathBuf>,
+        /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
+        #[arg(long)]
+        control: PathBuf,
+        /// Plate observations CSV (`control` rows resect, `dot` rows calibrate the projector).
+        #[arg(long)]
+        obs: PathBuf,
+        /// Output system.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// Every ray a free line (rays seen on one plate are then left out).
+        #[arg(long)]
+        noncentral: bool,
+        /// Images that cannot be resected and rays seen on one plate are errors.
+        #[arg(long)]
+        strict: bool,
+    },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
     Camera {
         /// The starting sensor: camera_init.json (pixel mapping, approximate f).
@@ -766,6 +795,28 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             output.result(&cli::camera_summary(&file, &options.free.inner), &json)?;
             leftover.keep();
         }
+        Command::Calibrate {
+            what:
+                CalibrateWhat::System {
+                    init,
+                    camera_obs,
+                    camera_control,
+                    control,
+                    obs,
+                    out,
+                    noncentral,
+                    strict,
+                },
+        } => cli::calibrate_system(&cli::SystemArgs {
+            init,
+            camera_obs,
+            camera_control,
+            control,
+            obs,
+            out,
+            noncentral,
+            strict,
+        })?,
         Command::Device { link, what } => match what {
             DeviceWhat::Ports => device_cli::ports()?,
             DeviceWhat::Info => device_cli::info(&link.args())?,

@@ -8,6 +8,7 @@ use crate::io::FileError;
 use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::{DotObservation, Plane, PlateImage};
 use deltaz_calib::resection::{resect, resect_control, ResectionResult, Sighting};
+use deltaz_calib::system_adjustment::PlateObservations;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use nalgebra::Vector2;
@@ -156,6 +157,43 @@ pub fn resect_images(
         bail!("image {:?}: cannot resect: {}", l.image, l.why);
     }
     Ok(resected.results)
+}
+
+/// The whole-system adjustment's plate images: for each resected image its targets (indices
+/// into `control`) and its dots. A dot label that is not a ray id names its line.
+pub fn plate_observations(
+    observations: &[Observation],
+    control: &[ControlPoint],
+    resected: &[(String, ResectionResult)],
+) -> Result<Vec<PlateObservations>> {
+    let index: HashMap<&str, usize> = control
+        .iter()
+        .enumerate()
+        .map(|(j, c)| (c.point.as_str(), j))
+        .collect();
+    let poses: Vec<(String, ExteriorOrientation<f64>)> = resected
+        .iter()
+        .map(|(image, r)| (image.clone(), r.exterior))
+        .collect();
+    let images = plate_images(observations, &poses)?;
+    Ok(resected
+        .iter()
+        .zip(images)
+        .map(|((image, r), plate)| PlateObservations {
+            image: image.clone(),
+            start: r.exterior,
+            targets: observations
+                .iter()
+                .filter(|o| &o.image == image && o.kind == PointKind::Control)
+                .filter_map(|o| {
+                    index
+                        .get(o.point.as_str())
+                        .map(|j| (Vector2::new(o.col, o.row), *j))
+                })
+                .collect(),
+            dots: plate.dots,
+        })
+        .collect())
 }
 
 /// The format tag of a resection's output file.

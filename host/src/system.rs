@@ -10,11 +10,13 @@
 
 use crate::projector_calibration::{CalibratedRay, LineCovariance, Model, ProjectorCalibration};
 use anyhow::{bail, Context, Result};
+use deltaz_calib::residual::INNER_NAMES;
+use deltaz_calib::system_adjustment::{AdjustedRay, SystemAdjustment, SystemModel};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::rig::Rig;
-use nalgebra::Vector3;
+use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -92,6 +94,82 @@ pub struct SystemRay {
     /// The ray's lateral covariance from calibration (for σ of reconstructed points).
     #[serde(default)]
     pub line_cov: LineCovariance,
+    /// From the whole-system adjustment: the ray's parameters and covariances.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adjusted: Option<RayCovariance>,
+}
+
+/// A ray of the whole-system adjustment: x(z) = P + o + (z − P_z)(a, b, 1) in the camera system.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RayCovariance {
+    /// a, b and (non-central) q_x, q_y of o = (q_x, q_y, 0).
+    pub params: Vec<f64>,
+    /// Their covariance, row by row.
+    pub covariance: Vec<Vec<f64>>,
+    /// Their covariance with the core [free inner | P], row by row (one row per parameter).
+    pub cross: Vec<Vec<f64>>,
+}
+
+/// The calibration's covariance from the whole-system adjustment: what a point's σ needs
+/// besides each ray's own block.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SystemCovariance {
+    /// The adjusted inner parameters by name: the core's first entries, then X_p, Y_p, Z_p.
+    pub inner_free: Vec<String>,
+    /// Covariance of the core, row by row (mm², rad² where it applies).
+    pub core: Vec<Vec<f64>>,
+    /// The image noise of the dots, estimated (px).
+    pub dot_sigma_px: f64,
+    /// The image noise of the plate targets, estimated (px).
+    pub target_sigma_px: f64,
+}
+
+/// What the calibration left out or could determine only without redundancy.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Warnings {
+    /// Plate images that could not be resected, with the reason.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub left_out_images: Vec<crate::plates::LeftOut>,
+    /// Rays seen on one plate: determined by the central model through the centre.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub single_plane_rays: Vec<u16>,
+    /// Rays left out (seen on one plate, non-central model).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub left_out_rays: Vec<u16>,
+}
+
+impl Warnings {
+    /// Nothing to report.
+    pub fn is_empty(&self) -> bool {
+        self.left_out_images.is_empty()
+            && self.single_plane_rays.is_empty()
+            && self.left_out_rays.is_empty()
+    }
+
+    /// One line per warning.
+    pub fn lines(&self) -> Vec<String> {
+        let ids = |v: &[u16]| v.iter().map(u16::to_string).collect::<Vec<_>>().join(", ");
+        let mut out: Vec<String> = self
+            .left_out_images
+            .iter()
+            .map(|l| format!("image {:?} left out: {}", l.image, l.why))
+            .collect();
+        if !self.single_plane_rays.is_empty() {
+            out.push(format!(
+                "{} rays seen on one plate only, determined through the centre without redundancy: {}",
+                self.single_plane_rays.len(),
+                ids(&self.single_plane_rays)
+            ));
+        }
+        if !self.left_out_rays.is_empty() {
+            out.push(format!(
+                "{} rays seen on one plate only left out (the non-central model needs two): {}",
+                self.left_out_rays.len(),
+                ids(&self.left_out_rays)
+            ));
+        }
+        out
+    }
 }
 
 /// The projector part of the system.
@@ -105,6 +183,9 @@ pub struct SystemProjector {
     pub centre_sigma: [f64; 3],
     /// The rays, sorted by id.
     pub rays: Vec<SystemRay>,
+    /// The covariance of the whole-system adjustment, if it made this calibration.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<SystemCovariance>,
 }
 
 /// Everything the fingerprint covers.
@@ -114,6 +195,9 @@ pub struct SystemContent {
     pub camera: SystemCamera,
     /// The projector.
     pub projector: SystemProjector,
+    /// What was left out or determined without redundancy.
+    #[serde(default, skip_serializing_if = "Warnings::is_empty")]
+    pub warnings: Warnings,
 }
 
 /// `system.json`.
@@ -160,8 +244,145 @@ impl SystemContent {
                 centre: projector.centre.into(),
                 centre_sigma: projector.centre_sigma.into(),
                 rays,
+                covariance: None,
             },
+            warnings: Warnings::default(),
         }
+    }
+
+    /// The system of a whole-system adjustment, in the camera system (the camera's pose is the
+    /// identity): the instrument's own frame.
+    pub fn from_adjustment(
+        grid: PixelGrid<f64>,
+        adjustment: &SystemAdjustment,
+        noncentral: bool,
+        warnings: Warnings,
+    ) -> Self {
+        let m = &adjustment.model;
+        let rows = |c: &DMatrix<f64>| -> Vec<Vec<f64>> {
+            c.row_iter().map(|r| r.iter().copied().collect()).collect()
+        };
+        let rays = m
+            .rays
+            .iter()
+            .map(|r| {
+                let (direction, offset) = r.line();
+                SystemRay {
+                    id: r.id,
+                    l: direction.x,
+                    m: direction.y,
+                    n: direction.z,
+                    offset: noncentral.then(|| offset.into()),
+                    planes: r.planes,
+                    miss_rms: r.miss_rms,
+                    miss_max: r.miss_max,
+                    line_cov: LineCovariance::default(),
+                    adjusted: Some(RayCovariance {
+                        params: r.params.clone(),
+                        covariance: rows(&r.covariance),
+                        cross: rows(&r.cross),
+                    }),
+                }
+            })
+            .collect();
+        Self {
+            camera: SystemCamera {
+                grid,
+                inner: m.inner,
+                pose: Pose {
+                    kappa: 0.0,
+                    phi: 0.0,
+                    omega: 0.0,
+                    centre: [0.0; 3],
+                },
+            },
+            projector: SystemProjector {
+                model: if noncentral {
+                    Model::Noncentral
+                } else {
+                    Model::Joint
+                },
+                centre: m.centre.into(),
+                centre_sigma: m.centre_sigma().into(),
+                rays,
+                covariance: Some(SystemCovariance {
+                    inner_free: m
+                        .inner_free
+                        .iter()
+                        .map(|&k| INNER_NAMES[k].to_owned())
+                        .collect(),
+                    core: rows(&m.core_covariance),
+                    dot_sigma_px: m.sigma_dots_px,
+                    target_sigma_px: adjustment.sigma_targets_px,
+                }),
+            },
+            warnings,
+        }
+    }
+
+    /// The model a point's σ is computed from, when the whole-system adjustment made this
+    /// calibration (None otherwise).
+    pub fn model(&self) -> Result<Option<SystemModel>> {
+        let Some(cov) = &self.projector.covariance else {
+            return Ok(None);
+        };
+        let matrix = |rows: &[Vec<f64>], what: &str| -> Result<DMatrix<f64>> {
+            let n = rows.first().map_or(0, Vec::len);
+            if rows.iter().any(|r| r.len() != n) {
+                bail!("{what}: rows of unequal length");
+            }
+            Ok(DMatrix::from_fn(rows.len(), n, |a, b| rows[a][b]))
+        };
+        let inner_free = cov
+            .inner_free
+            .iter()
+            .map(|name| {
+                INNER_NAMES
+                    .iter()
+                    .position(|n| n == name)
+                    .with_context(|| format!("unknown inner parameter {name:?}"))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let core = matrix(&cov.core, "covariance.core")?;
+        let k = inner_free.len() + 3;
+        if core.shape() != (k, k) {
+            bail!("covariance.core is {:?}, expected {k} × {k}", core.shape());
+        }
+        let rays = self
+            .projector
+            .rays
+            .iter()
+            .map(|r| {
+                let a = r
+                    .adjusted
+                    .as_ref()
+                    .with_context(|| format!("ray {}: no adjusted parameters", r.id))?;
+                let covariance = matrix(&a.covariance, "ray covariance")?;
+                let cross = matrix(&a.cross, "ray cross covariance")?;
+                let p = a.params.len();
+                if !(p == 2 || p == 4) || covariance.shape() != (p, p) || cross.shape() != (p, k) {
+                    bail!("ray {}: covariance of the wrong size", r.id);
+                }
+                Ok(AdjustedRay {
+                    id: r.id,
+                    params: a.params.clone(),
+                    planes: r.planes,
+                    covariance,
+                    cross,
+                    rms_px: 0.0,
+                    miss_rms: r.miss_rms,
+                    miss_max: r.miss_max,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Some(SystemModel {
+            inner: self.camera.inner,
+            inner_free,
+            centre: Vector3::from(self.projector.centre),
+            rays,
+            core_covariance: core,
+            sigma_dots_px: cov.dot_sigma_px,
+        }))
     }
 
     /// Validates and builds the rig (world = the rig frame).
@@ -216,6 +437,7 @@ impl From<&CalibratedRay> for SystemRay {
             miss_rms: r.miss_rms,
             miss_max: r.miss_max,
             line_cov: r.line_cov,
+            adjusted: None,
         }
     }
 }

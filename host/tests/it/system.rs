@@ -49,8 +49,8 @@ fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> Honesty {
             single_plane = adj.single_plane.len();
         }
         let c = Vector3::from(sim.truth.projector.centre_camera);
-        centre += (adj.centre - c)
-            .component_div(&adj.centre_sigma())
+        centre += (adj.model.centre - c)
+            .component_div(&adj.model.centre_sigma())
             .map(|v| v * v);
         let cmp = system_against_truth(&sim, &adj, held_out, Method::ClosestApproach).unwrap();
         let mut mean = Vector3::zeros();
@@ -69,8 +69,8 @@ fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> Honesty {
         }
         means.push(mean);
         targets += adj.sigma_targets_px / truth_px;
-        dots += adj.sigma_dots_px / truth_px;
-        worst = worst.max((adj.sigma_dots_px / truth_px - 1.0).abs());
+        dots += adj.model.sigma_dots_px / truth_px;
+        worst = worst.max((adj.model.sigma_dots_px / truth_px - 1.0).abs());
     }
     let n = seeds as f64;
     let grand = means.iter().sum::<Vector3<f64>>() / n;
@@ -147,3 +147,118 @@ fn paper_rig_states_honest_sigma() {
     let h = monte_carlo(&Scenario::paper_five_plates(), 5, 100);
     check("paper", &h);
 }
+
+mod cli {
+    use deltaz_host::simulate::{simulate, write_simulation, Scenario};
+    use deltaz_host::system::SystemFile;
+    use std::path::Path;
+    use std::process::{Command, Output};
+
+    fn deltaz(args: &[&str], dir: &Path) -> Output {
+        Command::new(env!("CARGO_BIN_EXE_deltaz"))
+            .args(args)
+            .current_dir(dir)
+            .output()
+            .unwrap()
+    }
+
+    fn calibrate_system(dir: &Path, extra: &[&str]) -> Output {
+        let mut args = vec![
+            "calibrate",
+            "system",
+            "--init",
+            "camera_init.json",
+            "--camera-obs",
+            "camera_obs.csv",
+            "--camera-control",
+            "camera_control.csv",
+            "--control",
+            "plate_control.csv",
+            "--obs",
+            "plate_obs.csv",
+            "--out",
+            "system.json",
+        ];
+        args.extend_from_slice(extra);
+        deltaz(&args, dir)
+    }
+
+    /// `calibrate system` on the desk rig's files: the rays on one plate are listed on stderr and
+    /// in system.json, which holds the covariance; `reconstruct` then gives every point a σ
+    /// (camera + projector + image noise). With `--strict` the same data is an error and
+    /// nothing is written.
+    #[test]
+    fn calibrate_system_then_reconstruct_with_sigma() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        write_simulation(d, &simulate(&Scenario::desk(), 7)).unwrap();
+        let strict = calibrate_system(d, &["--strict"]);
+        let err = String::from_utf8_lossy(&strict.stderr).into_owned();
+        assert!(!strict.status.success());
+        assert!(
+            err.contains("--strict") && err.contains("seen on one plate only"),
+            "{err}"
+        );
+        assert!(!d.join("system.json").exists());
+
+        let out = calibrate_system(d, &[]);
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{err}");
+        assert!(
+            err.contains("warning:") && err.contains("seen on one plate only"),
+            "{err}"
+        );
+        let (file, _) = SystemFile::load(&d.join("system.json")).unwrap();
+        let single = &file.content.warnings.single_plane_rays;
+        assert!(!single.is_empty());
+        let cov = file.content.projector.covariance.as_ref().unwrap();
+        assert_eq!(cov.inner_free, ["f", "cx", "cy", "k1"]);
+        assert!(
+            (cov.dot_sigma_px / 0.5 - 1.0).abs() < 0.1,
+            "{}",
+            cov.dot_sigma_px
+        );
+        assert!(file.content.model().unwrap().is_some());
+        // The camera system is the frame: the camera sits at the origin.
+        assert_eq!(file.content.camera.pose.centre, [0.0; 3]);
+
+        let rec = deltaz(
+            &[
+                "reconstruct",
+                "--system",
+                "system.json",
+                "--obs",
+                "plate_obs.csv",
+                "--out",
+                "points.ply",
+                "--csv",
+                "points.csv",
+            ],
+            d,
+        );
+        assert!(
+            rec.status.success(),
+            "{}",
+            String::from_utf8_lossy(&rec.stderr)
+        );
+        let csv = std::fs::read_to_string(d.join("points.csv")).unwrap();
+        let mut lines = csv.lines();
+        assert!(lines.next().unwrap().ends_with("sigma_X,sigma_Y,sigma_Z"));
+        let mut count = 0;
+        for line in lines {
+            let sigma: Vec<f64> = line
+                .split(',')
+                .skip(6)
+                .map(|v| v.parse().unwrap())
+                .collect();
+            assert_eq!(sigma.len(), 3);
+            assert!(
+                sigma.iter().all(|s| s.is_finite() && *s > 0.0 && *s < 5.0),
+                "{line}"
+            );
+            count += 1;
+        }
+        assert!(count > 1000, "{count} points");
+    }
+}
+
