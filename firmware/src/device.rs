@@ -214,9 +214,10 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         self.stats.bad_frames = self.stats.bad_frames.wrapping_add(1);
     }
 
-    /// Answer request `seq` (read in place, see [`RequestView`]): its response frame is written
-    /// into `tx` (at least [`MAX_FRAME`] bytes); returns its length.
-    pub fn handle(&mut self, seq: u32, request: RequestView<'_>, tx: &mut [u8]) -> usize {
+    /// Answer request `seq` (read in place, see [`RequestView`]): its response frame is handed
+    /// to `tx` block by block as it is written (no transmit buffer). Every failure is found
+    /// before the first byte goes out, and answered with an error instead.
+    pub fn handle(&mut self, seq: u32, request: RequestView<'_>, tx: &mut dyn FnMut(&[u8])) {
         if seq == 0 {
             // Seq 0 is the device's own for frames it could not read: a request must not use it.
             self.count_bad_frame();
@@ -245,11 +246,13 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
                 reply(tx, seq, tag::RESETTING, &())
             }
         };
-        written.unwrap_or_else(|code| error_frame(tx, seq, code))
+        if let Err(code) = written {
+            error_frame(tx, seq, code);
+        }
     }
 
     /// The answer to a frame that could not be read (`seq` 0 unless its CRC held): counted.
-    pub fn refuse(&mut self, seq: u32, error: WireError, tx: &mut [u8]) -> usize {
+    pub fn refuse(&mut self, seq: u32, error: WireError, tx: &mut dyn FnMut(&[u8])) {
         self.count_bad_frame();
         error_frame(tx, seq, ErrorCode::Frame(error))
     }
@@ -343,13 +346,13 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         &mut self,
         seq: u32,
         centroids: &Batch<'_, Centroid>,
-        tx: &mut [u8],
-    ) -> Result<usize, ErrorCode> {
+        tx: &mut dyn FnMut(&[u8]),
+    ) -> Result<(), ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
         let bits = active.summary.centroid_bits;
         let start = self.probe.now();
         let rig = active.rig(&self.rays);
-        let mut out = FrameWriter::new(tx, seq, tag::POINTS).map_err(ErrorCode::Frame)?;
+        let mut out = FrameWriter::streamed(tx, seq, tag::POINTS);
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(centroids.len() as u32)))
             .map_err(ErrorCode::Frame)?;
@@ -368,8 +371,8 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         &mut self,
         seq: u32,
         dots: &Batch<'_, Dot>,
-        tx: &mut [u8],
-    ) -> Result<usize, ErrorCode> {
+        tx: &mut dyn FnMut(&[u8]),
+    ) -> Result<(), ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
         if active.identification.is_none() {
             return Err(ErrorCode::NoIdentification);
@@ -383,7 +386,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             .ok_or(ErrorCode::Frame(WireError::Malformed))?;
         self.identifier
             .identify_each(dots.iter().map(|d| d.pixel::<f32>(bits)), found);
-        let mut out = FrameWriter::new(tx, seq, tag::IDENTIFIED).map_err(ErrorCode::Frame)?;
+        let mut out = FrameWriter::streamed(tx, seq, tag::IDENTIFIED);
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(dots.len() as u32)))
             .map_err(ErrorCode::Frame)?;
@@ -439,16 +442,21 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     }
 }
 
-/// Write the response `tag` with `payload` into `tx`: its length.
-fn reply<T: Serialize>(tx: &mut [u8], seq: u32, tag: u32, payload: &T) -> Result<usize, ErrorCode> {
-    let mut out = FrameWriter::new(tx, seq, tag).map_err(ErrorCode::Frame)?;
+/// Send the response `tag` with `payload` to `tx`.
+fn reply<T: Serialize>(
+    tx: &mut dyn FnMut(&[u8]),
+    seq: u32,
+    tag: u32,
+    payload: &T,
+) -> Result<(), ErrorCode> {
+    let mut out = FrameWriter::streamed(tx, seq, tag);
     out.put(payload).map_err(ErrorCode::Frame)?;
     out.finish().map_err(ErrorCode::Frame)
 }
 
-/// Write the response `Error(code)` into `tx`: its length (0 if even that did not fit).
-fn error_frame(tx: &mut [u8], seq: u32, code: ErrorCode) -> usize {
-    reply(tx, seq, tag::ERROR, &code).unwrap_or(0)
+/// Send the response `Error(code)` to `tx` (a sink takes every byte: it cannot fail).
+fn error_frame(tx: &mut dyn FnMut(&[u8]), seq: u32, code: ErrorCode) {
+    let _ = reply(tx, seq, tag::ERROR, &code);
 }
 
 /// A store failure as the host sees it.

@@ -15,7 +15,7 @@ use crate::store::Store;
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use deltaz_shared::protocol::stream::view_request;
-use deltaz_shared::protocol::{WireError, MAX_FRAME, MAX_REQUEST};
+use deltaz_shared::protocol::{WireError, MAX_REQUEST};
 use embedded_io::{Read, Write};
 use embedded_storage::nor_flash::NorFlash;
 
@@ -25,7 +25,6 @@ pub struct Server<F, P> {
     rx: [u8; MAX_REQUEST],
     rx_len: usize,
     overflow: bool,
-    tx: [u8; MAX_FRAME],
 }
 
 impl<F: NorFlash, P: Probe> Server<F, P> {
@@ -50,7 +49,6 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
             addr_of_mut!((*me).rx).write_bytes(0, 1);
             addr_of_mut!((*me).rx_len).write(0);
             addr_of_mut!((*me).overflow).write(false);
-            addr_of_mut!((*me).tx).write_bytes(0, 1);
             slot.assume_init_mut()
         };
         server.device.load();
@@ -67,8 +65,9 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         self.device
     }
 
-    /// Take one received byte; when it ends a frame, the encoded response to send.
-    pub fn push(&mut self, byte: u8) -> Option<&[u8]> {
+    /// Take one received byte; when it ends a frame, the response goes to `tx`, block by block
+    /// as it is written (the request read in place, no transmit buffer).
+    pub fn push(&mut self, byte: u8, tx: &mut dyn FnMut(&[u8])) {
         if byte != 0 {
             match self.rx.get_mut(self.rx_len) {
                 Some(slot) => {
@@ -77,21 +76,17 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
                 }
                 None => self.overflow = true,
             }
-            return None;
+            return;
         }
         let len = core::mem::take(&mut self.rx_len);
-        let len = if core::mem::take(&mut self.overflow) {
-            self.device.refuse(0, WireError::Oversized, &mut self.tx)
-        } else if len == 0 {
-            return None;
-        } else {
-            // The request is read in place and the response written straight into `tx`.
+        if core::mem::take(&mut self.overflow) {
+            self.device.refuse(0, WireError::Oversized, tx);
+        } else if len > 0 {
             match view_request(&mut self.rx[..len]) {
-                Ok((seq, request)) => self.device.handle(seq, request, &mut self.tx),
-                Err((seq, error)) => self.device.refuse(seq, error, &mut self.tx),
+                Ok((seq, request)) => self.device.handle(seq, request, tx),
+                Err((seq, error)) => self.device.refuse(seq, error, tx),
             }
-        };
-        Some(&self.tx[..len])
+        }
     }
 
     /// Serve `io` until a `Reset` was answered (the board then restarts) or the port fails.
@@ -99,12 +94,16 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         let mut buf = [0u8; 64];
         loop {
             let n = io.read(&mut buf)?;
+            let mut failed = Ok(());
             for &byte in &buf[..n] {
-                if let Some(frame) = self.push(byte) {
-                    io.write_all(frame)?;
-                    io.flush()?;
-                }
+                self.push(byte, &mut |bytes| {
+                    if failed.is_ok() {
+                        failed = io.write_all(bytes);
+                    }
+                });
             }
+            failed?;
+            io.flush()?;
             if self.device.reset_requested() {
                 return Ok(());
             }

@@ -149,11 +149,31 @@ fn point_segment_distance<T: RealField + Copy>(p: Vector2<T>, a: Vector2<T>, b: 
     (a + ab * t - p).norm()
 }
 
+/// An epipolar polyline as the identifier keeps it: (col, row) of each vertex in i16 fixed point
+/// (20 bytes instead of 40 in f32).
+type Polyline = [[i16; 2]; SUBSEGMENTS + 1];
+
+/// The fixed-point step of the polylines for a sensor `extent` pixels wide (its larger side):
+/// 1/16 pixel while ±2 extents fit the i16 range (up to 1023 pixels), coarser above. Rounding
+/// moves a vertex by at most half a step (1/32 pixel per axis), a few per cent of a tolerance.
+fn fixed_point_unit<T: RealField + Copy + SupersetOf<f32>>(extent: u32) -> T {
+    let mut bits = 4;
+    while bits > 0 && (2 * u64::from(extent)) << bits > i16::MAX as u64 {
+        bits -= 1;
+    }
+    nalgebra::convert::<f32, T>(1.0 / (1u32 << bits) as f32)
+}
+
 /// Dot identification by epipolar segments with a lookup grid; capacities: `R` rays, `C` cells,
 /// `E` cell entries.
 #[derive(Debug, Clone)]
 pub struct Identifier<T: RealField, const R: usize, const C: usize, const E: usize> {
-    segments: [EpipolarSegment<T>; R],
+    /// Each ray's epipolar polyline in i16 fixed point of `unit` pixels (see [`Polyline`]).
+    polylines: [Polyline; R],
+    /// The rays' ids, in the projector's order.
+    ids: [u16; R],
+    /// Pixels per fixed-point step of `polylines`.
+    unit: T,
     rays: usize,
     tolerance: T,
     cell: T,
@@ -196,19 +216,14 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         // Ray indices and entry positions are u16.
         const { assert!(R <= u16::MAX as usize, "at most 65535 rays") };
         const { assert!(E <= u16::MAX as usize, "at most 65535 entries") };
-        let zero = EpipolarSegment {
-            id: 0,
-            points: [Vector2::zeros(); SUBSEGMENTS + 1],
-        };
         let me = slot.as_mut_ptr();
         // SAFETY: every field of `*me` is written through a raw pointer to it (no reference to
         // uninitialised memory is made), the arrays element by element (zero bytes are a valid
         // u16), before `assume_init_mut`.
         unsafe {
-            let segments = addr_of_mut!((*me).segments).cast::<EpipolarSegment<T>>();
-            for k in 0..R {
-                segments.add(k).write(zero);
-            }
+            addr_of_mut!((*me).polylines).write_bytes(0, 1);
+            addr_of_mut!((*me).ids).write_bytes(0, 1);
+            addr_of_mut!((*me).unit).write(T::one());
             addr_of_mut!((*me).rays).write(0);
             addr_of_mut!((*me).tolerance).write(T::one());
             addr_of_mut!((*me).cell).write(T::one());
@@ -275,14 +290,17 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         self.grid_cols = grid_cols;
         self.grid_rows = grid_rows;
         self.starts.fill(0);
+        self.unit = fixed_point_unit(grid.width.max(grid.height));
         for (k, ray) in rays.iter().enumerate() {
-            self.segments[k] = epipolar_segment(rig, ray, depth)
+            let segment = epipolar_segment(rig, ray, depth)
                 .map_err(|e| IdentifyError::Geometry(ray.id, e))?;
+            self.polylines[k] = segment.points.map(|p| [p.x, p.y].map(|v| self.fixed(v)));
+            self.ids[k] = ray.id;
         }
         // Two passes over the cells each segment touches: count, then fill (each cell's slots
         // from its end down, the rays in reverse: every cell lists its rays in order).
         for k in 0..self.rays {
-            let segment = self.segments[k];
+            let segment = self.segment(k);
             self.for_each_cell(&segment, |me, cell| me.starts[cell] += 1);
         }
         let mut total = 0usize;
@@ -295,7 +313,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         }
         self.total = total as u16;
         for k in (0..self.rays).rev() {
-            let segment = self.segments[k];
+            let segment = self.segment(k);
             self.for_each_cell(&segment, |me, cell| {
                 me.starts[cell] -= 1;
                 me.entries[usize::from(me.starts[cell])] = k as u16;
@@ -367,9 +385,28 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         Some(r * self.grid_cols + c)
     }
 
-    /// The epipolar segments, in the projector's ray order.
-    pub fn segments(&self) -> &[EpipolarSegment<T>] {
-        &self.segments[..self.rays]
+    /// The epipolar segments, in the projector's ray order (as stored: vertices in fixed point).
+    pub fn segments(&self) -> impl Iterator<Item = EpipolarSegment<T>> + '_ {
+        (0..self.rays).map(|k| self.segment(k))
+    }
+
+    /// Ray `k`'s polyline in pixels.
+    fn segment(&self, k: usize) -> EpipolarSegment<T> {
+        EpipolarSegment {
+            id: self.ids[k],
+            points: self.polylines[k].map(|[x, y]| Vector2::new(self.pixels(x), self.pixels(y))),
+        }
+    }
+
+    /// A pixel coordinate in the polylines' fixed point (rounded; clamped to the i16 range).
+    fn fixed(&self, v: T) -> i16 {
+        let steps = nalgebra::try_convert::<T, f32>(v / self.unit).unwrap_or(0.0);
+        libm::roundf(steps).clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16
+    }
+
+    /// A fixed-point coordinate in pixels.
+    fn pixels(&self, q: i16) -> T {
+        nalgebra::convert::<f32, T>(f32::from(q)) * self.unit
     }
 
     /// Total cell entries of the lookup grid (its memory use beyond the segments).
@@ -402,7 +439,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let mut second: Option<(T, usize)> = None;
         for &k in self.cell_entries(cell) {
             let k = usize::from(k);
-            let d = self.segments[k].distance(p);
+            let d = self.segment(k).distance(p);
             if d > self.tolerance {
                 continue;
             }
@@ -421,14 +458,14 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         match (first, second) {
             (Some((_, a)), Some((_, b))) => (
                 Assignment::Ambiguous {
-                    first: self.segments[a].id,
-                    second: self.segments[b].id,
+                    first: self.ids[a],
+                    second: self.ids[b],
                 },
                 a,
             ),
             (Some((d, a)), None) => (
                 Assignment::Ray {
-                    id: self.segments[a].id,
+                    id: self.ids[a],
                     distance: d,
                 },
                 a,
@@ -464,9 +501,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let mut identified = 0;
         for slot in out.iter_mut().take(n) {
             if let Assignment::Ray { id, .. } = *slot {
-                let k = self.segments[..self.rays]
-                    .binary_search_by_key(&id, |s| s.id)
-                    .unwrap_or(0);
+                let k = self.ids[..self.rays].binary_search(&id).unwrap_or(0);
                 if claims[k] > 1 {
                     *slot = Assignment::Conflict { id };
                 } else {
@@ -485,7 +520,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let mut pairs = 0;
         for a in 0..self.rays {
             for b in a + 1..self.rays {
-                if segments_distance(&self.segments[a], &self.segments[b]) <= limit {
+                if segments_distance(&self.segment(a), &self.segment(b)) <= limit {
                     pairs += 1;
                 }
             }
@@ -630,8 +665,10 @@ mod tests {
                 match ident.identify(c, r) {
                     Assignment::Ray { id: got, distance } => {
                         assert_eq!(got, id);
-                        // The polyline's chord error from distortion stays far below tolerance.
-                        assert!(distance < 0.02, "{distance}");
+                        // The polyline's chord error from distortion (< 0.02 px) and its fixed
+                        // point (half a 1/16-pixel step per axis: ≤ 0.045 px) stay far below
+                        // the tolerance.
+                        assert!(distance < 0.065, "{distance}");
                     }
                     other => panic!("ray {id} at {depth}: {other:?}"),
                 }
@@ -736,11 +773,11 @@ mod tests {
             ident.rebuild(&rig, inverted, 0.5, 16.0),
             Err(IdentifyError::InvalidParameters)
         );
-        assert_eq!((ident.segments().len(), ident.entries()), (0, 0));
+        assert_eq!((ident.segments().count(), ident.entries()), (0, 0));
         assert_eq!(ident.identify(c, r), Assignment::Unassigned);
         ident.rebuild(&rig, DEPTH, 0.5, 16.0).unwrap();
         let fresh = Small::new(&rig, DEPTH, 0.5, 16.0).unwrap();
-        assert_eq!(ident.segments(), fresh.segments());
+        assert!(ident.segments().eq(fresh.segments()));
         assert_eq!(ident.entries(), fresh.entries());
         assert_eq!(ident.identify(c, r), fresh.identify(c, r));
     }

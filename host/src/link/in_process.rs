@@ -72,9 +72,8 @@ impl Transport for InProcess {
                 .server
                 .as_mut()
                 .ok_or_else(|| io::Error::other("the in-process device failed to reboot"))?;
-            if let Some(frame) = server.push(byte) {
-                self.outbox.extend_from_slice(frame);
-            }
+            let outbox = &mut self.outbox;
+            server.push(byte, &mut |bytes| outbox.extend_from_slice(bytes));
             if server.device().reset_requested() {
                 self.reboot();
             }

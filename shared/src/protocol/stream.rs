@@ -222,17 +222,83 @@ fn read_body(kind: u32, bytes: &[u8]) -> Option<RequestView<'_>> {
     })
 }
 
-/// A response frame written field by field into a buffer: postcard's encoding of each field,
-/// the CRC and COBS as [`super::encode_frame`] applies them.
-pub struct FrameWriter<'b> {
-    out: postcard::Serializer<CrcModifier<'static, Cobs<Slice<'b>>, u32>>,
+/// COBS streamed: each block goes to `out` as soon as it is complete, so at most 255 bytes of a
+/// frame are ever held (the bytes of postcard's `Cobs` flavor: a full block of 254 bytes, a
+/// last block's code, then the 0x00 delimiter).
+pub struct CobsSink<'o> {
+    out: &'o mut dyn FnMut(&[u8]),
+    block: [u8; 255],
+    len: usize,
+}
+
+impl<'o> CobsSink<'o> {
+    /// A sink handing the encoded bytes to `out`.
+    pub fn new(out: &'o mut dyn FnMut(&[u8])) -> Self {
+        Self {
+            out,
+            block: [0; 255],
+            len: 0,
+        }
+    }
+
+    /// Send the current block with its code.
+    fn emit(&mut self) {
+        self.block[0] = (self.len + 1) as u8;
+        (self.out)(&self.block[..=self.len]);
+        self.len = 0;
+    }
+}
+
+impl Flavor for CobsSink<'_> {
+    type Output = ();
+
+    fn try_push(&mut self, data: u8) -> postcard::Result<()> {
+        if data == 0 {
+            self.emit();
+        } else {
+            self.len += 1;
+            self.block[self.len] = data;
+            if self.len == 254 {
+                self.emit();
+            }
+        }
+        Ok(())
+    }
+
+    fn finalize(mut self) -> postcard::Result<()> {
+        self.emit();
+        (self.out)(&[0]);
+        Ok(())
+    }
+}
+
+/// A response frame written field by field: postcard's encoding of each field, the CRC and COBS
+/// as [`super::encode_frame`] applies them, into a buffer ([`FrameWriter::new`]) or straight out
+/// ([`FrameWriter::streamed`]).
+pub struct FrameWriter<F: Flavor> {
+    out: postcard::Serializer<CrcModifier<'static, F, u32>>,
     ids: i32,
 }
 
-impl<'b> FrameWriter<'b> {
+impl<'b> FrameWriter<Cobs<Slice<'b>>> {
     /// Start the response to request `seq` of kind `tag` (see [`tag`]) in `buf`.
     pub fn new(buf: &'b mut [u8], seq: u32, tag: u32) -> Result<Self, WireError> {
         let cobs = Cobs::try_new(Slice::new(buf)).map_err(|_| WireError::BufferFull)?;
+        Self::start(cobs, seq, tag)
+    }
+}
+
+impl<'o> FrameWriter<CobsSink<'o>> {
+    /// Start the response to request `seq` of kind `tag`, its bytes handed to `out` block by
+    /// block (a UART: no transmit buffer).
+    pub fn streamed(out: &'o mut dyn FnMut(&[u8]), seq: u32, tag: u32) -> Self {
+        Self::start(CobsSink::new(out), seq, tag)
+            .unwrap_or_else(|_| unreachable!("a sink takes every byte"))
+    }
+}
+
+impl<F: Flavor> FrameWriter<F> {
+    fn start(cobs: F, seq: u32, tag: u32) -> Result<Self, WireError> {
         let mut me = Self {
             out: postcard::Serializer {
                 output: CrcModifier::new(cobs, CRC.digest()),
@@ -259,13 +325,12 @@ impl<'b> FrameWriter<'b> {
         self.put(&(delta, result))
     }
 
-    /// Close the frame: its length in the buffer, delimiter included.
-    pub fn finish(self) -> Result<usize, WireError> {
-        let frame = self
-            .out
+    /// Close the frame (the CRC, the last COBS block, the delimiter): the frame in the buffer,
+    /// or nothing for a stream.
+    pub fn finish(self) -> Result<F::Output, WireError> {
+        self.out
             .output
             .finalize()
-            .map_err(|_| WireError::BufferFull)?;
-        Ok(frame.len())
+            .map_err(|_| WireError::BufferFull)
     }
 }

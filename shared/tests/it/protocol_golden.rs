@@ -221,7 +221,7 @@ fn written(response: &Response, buf: &mut [u8]) -> usize {
     let one = |buf: &mut [u8], tag, payload: &dyn erased::Put| {
         let mut w = FrameWriter::new(buf, seq, tag).unwrap();
         payload.put(&mut w);
-        w.finish().unwrap()
+        w.finish().unwrap().len()
     };
     match &response.body {
         ResponseBody::Info(i) => one(buf, tag::INFO, i),
@@ -244,7 +244,7 @@ fn written(response: &Response, buf: &mut [u8]) -> usize {
             for p in points {
                 w.put(p).unwrap();
             }
-            w.finish().unwrap()
+            w.finish().unwrap().len()
         }
         ResponseBody::Identified {
             fingerprint,
@@ -256,7 +256,7 @@ fn written(response: &Response, buf: &mut [u8]) -> usize {
             for p in points {
                 w.put_identified(p.id, &p.result).unwrap();
             }
-            w.finish().unwrap()
+            w.finish().unwrap().len()
         }
     }
 }
@@ -264,16 +264,66 @@ fn written(response: &Response, buf: &mut [u8]) -> usize {
 /// A payload of any type behind one reference.
 mod erased {
     use deltaz_shared::protocol::stream::FrameWriter;
+    use postcard::ser_flavors::{Cobs, Slice};
 
     pub trait Put {
-        fn put(&self, w: &mut FrameWriter);
+        fn put(&self, w: &mut FrameWriter<Cobs<Slice>>);
     }
 
     impl<T: serde::Serialize> Put for T {
-        fn put(&self, w: &mut FrameWriter) {
+        fn put(&self, w: &mut FrameWriter<Cobs<Slice>>) {
             w.put(self).unwrap();
         }
     }
+}
+
+/// The points of a `Points` response streamed out (the device's way), with long runs of
+/// non-zero bytes (full COBS blocks); other responses through [`written`].
+fn streamed_out(response: &Response, out: &mut dyn FnMut(&[u8])) {
+    let mut buf = [0u8; MAX_FRAME];
+    match &response.body {
+        ResponseBody::Points {
+            fingerprint,
+            points,
+        } => {
+            let mut w = FrameWriter::streamed(out, response.seq, tag::POINTS);
+            w.put(fingerprint).unwrap();
+            w.put(&(points.len() as u32)).unwrap();
+            for p in points {
+                w.put(p).unwrap();
+            }
+            w.finish().unwrap();
+        }
+        _ => {
+            let len = written(response, &mut buf);
+            out(&buf[..len]);
+        }
+    }
+}
+
+/// A long `Points` answer (runs of more than 254 non-zero bytes) streamed out block by block is
+/// the frame `encode_frame` makes.
+#[test]
+fn streamed_frames_equal_buffered_ones() {
+    let points: heapless::Vec<PointResult, 512> = (0..300)
+        .map(|i| PointResult::Point {
+            xyz: [0x11_1111 + i, -0x22_2222 - i, 0x33_3333],
+            miss: 0x21,
+        })
+        .collect();
+    let response = Response {
+        seq: 77,
+        body: ResponseBody::Points {
+            fingerprint: u64::MAX,
+            points,
+        },
+    };
+    let mut buf = [0u8; MAX_FRAME];
+    let expected = encode_frame(&response, &mut buf).unwrap().to_vec();
+    let mut out = Vec::new();
+    streamed_out(&response, &mut |b| out.extend_from_slice(b));
+    assert_eq!(out, expected);
+    assert_eq!(decode_response(&mut body(&out)), Ok(response));
 }
 
 #[test]
@@ -286,6 +336,10 @@ fn response_frames_are_golden() {
         let mut streamed = [0u8; MAX_FRAME];
         let len = written(&response, &mut streamed);
         assert_eq!(&streamed[..len], &bytes(golden)[..], "{:?}", response.body);
+        // And block by block, straight out.
+        let mut out = Vec::new();
+        streamed_out(&response, &mut |b| out.extend_from_slice(b));
+        assert_eq!(out, bytes(golden), "{:?}", response.body);
         assert_eq!(decode_response(&mut body(frame)), Ok(response));
     }
 }
