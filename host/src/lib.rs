@@ -12,6 +12,7 @@ pub mod export;
 pub mod io;
 pub mod link;
 pub mod measure;
+pub mod plots;
 pub mod ply;
 pub mod projector_calibration;
 pub mod reconstruct;
