@@ -317,17 +317,38 @@ pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
     )
 }
 
+/// Arguments of `deltaz calibrate projector`.
+#[derive(Debug, Clone)]
+pub struct ProjectorArgs {
+    /// camera.json.
+    pub camera: PathBuf,
+    /// The plate's control CSV.
+    pub control: PathBuf,
+    /// Plate observations CSV.
+    pub obs: PathBuf,
+    /// system.json to write.
+    pub out: PathBuf,
+    /// The projector model.
+    pub model: Model,
+    /// Image noise (px).
+    pub image_sigma_px: f64,
+    /// Directory of SVG plots, if any.
+    pub plots: Option<PathBuf>,
+}
+
 /// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
 /// system.json written atomically only when everything succeeded.
-pub fn calibrate_projector(
-    camera: &Path,
-    control: &Path,
-    obs: &Path,
-    out: &Path,
-    model: Model,
-    image_sigma_px: f64,
-    output: Output,
-) -> Result<()> {
+pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
+    let ProjectorArgs {
+        camera,
+        control,
+        obs,
+        out,
+        model,
+        image_sigma_px,
+        plots,
+    } = args;
+    let (model, image_sigma_px) = (*model, *image_sigma_px);
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
     let control_points = read_control(control)?;
@@ -349,6 +370,16 @@ pub fn calibrate_projector(
     content.rig()?;
     let file = SystemFile::new(content)?;
     write_atomic(out, file.to_json()?.as_bytes())?;
+    if let Some(dir) = plots {
+        let rays: Vec<_> = projector
+            .rays
+            .iter()
+            .map(|r| (r.id, r.miss_rms, r.miss_max))
+            .collect();
+        let svg = crate::plots::ray_misses(&rays)?;
+        crate::plots::write_plots(dir, &[("ray_misses.svg", svg)])?;
+        output.status(format!("plot -> {}", dir.join("ray_misses.svg").display()));
+    }
     let worst = projector
         .rays
         .iter()

@@ -12,6 +12,7 @@ pub mod io;
 pub mod link;
 pub mod measure;
 pub mod plates;
+pub mod plots;
 pub mod ply;
 pub mod residuals;
 pub mod simulate;

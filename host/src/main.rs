@@ -423,6 +423,9 @@ enum CalibrateWhat {
         /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
         #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
+        /// Also write SVG plots into this directory (residuals, miss distances).
+        #[arg(long)]
+        plots: Option<PathBuf>,
         #[command(flatten)]
         output: cli::Output,
     },
@@ -490,6 +493,9 @@ enum CalibrateWhat {
         /// A priori σ of image coordinates (px, > 0), weighting control against images.
         #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
+        /// Also write SVG plots into this directory (residuals, miss distances).
+        #[arg(long)]
+        plots: Option<PathBuf>,
         #[command(flatten)]
         output: cli::Output,
     },
@@ -701,6 +707,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     out,
                     model,
                     image_sigma_px,
+                    plots,
                     output,
                 },
         } => {
@@ -725,7 +732,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
                 (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
             };
-            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px, output)?;
+            cli::calibrate_projector(
+                &cli::ProjectorArgs {
+                    camera,
+                    control,
+                    obs,
+                    out,
+                    model,
+                    image_sigma_px,
+                    plots,
+                },
+                output,
+            )?;
             leftover.keep();
         }
         Command::Calibrate {
@@ -742,6 +760,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     p2,
                     free_network,
                     image_sigma_px,
+                    plots,
                     output,
                 },
         } => {
@@ -790,6 +809,21 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 out.display(),
                 deltaz_host::residuals::residuals_path(&out).display()
             ));
+            if let Some(dir) = &plots {
+                let [width, height] = file.image_size;
+                let (histogram, _) = deltaz_host::plots::residual_histogram(&residuals)?;
+                let written = deltaz_host::plots::write_plots(
+                    dir,
+                    &[
+                        (
+                            "residual_vectors.svg",
+                            deltaz_host::plots::residual_vectors(&residuals, width, height)?,
+                        ),
+                        ("residual_histogram.svg", histogram),
+                    ],
+                )?;
+                output.status(format!("{} plots -> {}", written.len(), dir.display()));
+            }
             let mut json = serde_json::to_value(&file)?;
             json["out"] = serde_json::json!(out);
             output.result(&cli::camera_summary(&file, &options.free.inner), &json)?;

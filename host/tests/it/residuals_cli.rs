@@ -8,15 +8,15 @@ use std::process::Command;
 
 fn calibrate(dir: &Path, control: &str) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args("calibrate camera --init camera_init.json --obs camera_obs.csv".split(' '))
         .args([
-            "calibrate",
-            "camera",
-            "--init",
-            "camera_init.json",
-            "--obs",
-            "camera_obs.csv",
+            "--control",
+            control,
+            "--out",
+            "camera.json",
+            "--plots",
+            "plots",
         ])
-        .args(["--control", control, "--out", "camera.json"])
         .current_dir(dir)
         .output()
         .unwrap();
@@ -52,6 +52,14 @@ fn residuals_written_and_inconsistent_control_warned() {
     assert!(
         (ours - stated).abs() < 2e-3 && (ours - 0.5).abs() < 0.1,
         "{ours} vs {stated}"
+    );
+    let vectors = std::fs::read_to_string(d.join("plots/residual_vectors.svg")).unwrap();
+    assert!(
+        vectors.contains("s9: RMS") && vectors.contains("col (px)") && vectors.contains("1 px")
+    );
+    let histogram = std::fs::read_to_string(d.join("plots/residual_histogram.svg")).unwrap();
+    assert!(
+        histogram.contains("Residuals: 840 coordinates") && histogram.contains("expected: normal")
     );
 
     let control = std::fs::read_to_string(d.join("camera_control.csv")).unwrap();
