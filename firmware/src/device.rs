@@ -38,8 +38,8 @@ type RayTable = heapless::Vec<ProjectorRay<f32>, MAX_RAYS>;
 pub type DeviceRig<'a> = Rig<f32, &'a [ProjectorRay<f32>]>;
 
 /// The device's dot identifier: f32, [`MAX_RAYS`] rays, 2048 cells (768 × 512 pixels in cells
-/// of 16), 4096 cell entries; about 43 KB.
-pub type DeviceIdentifier = Identifier<f32, MAX_RAYS, 2048, 4096>;
+/// of 16), 3072 cell entries (a 440-ray torso calibration fills about 1,900); 21.5 KB.
+pub type DeviceIdentifier = Identifier<f32, MAX_RAYS, 2048, 3072>;
 
 /// The board's instruments: a tick counter timing the compute (SysTick on a board) and, where
 /// the board measures it, the stack's high-water mark.

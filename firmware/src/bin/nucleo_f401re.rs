@@ -2,8 +2,8 @@
 //! stm32f4xx-hal): the protocol on USART2 (PA2/PA3, wired to the ST-LINK's USB virtual COM port)
 //! at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the calibration store
 //! in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000), SysTick at the core
-//! clock. The server (60 KB) is written in place into a static and the stack peaks at about
-//! 6.3 KB (measured under QEMU with the same code).
+//! clock. The server (39.8 KB) is written in place into a static and the stack peaks at about
+//! 6.9 KB (measured under QEMU with the same code).
 //!
 //! Build: `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release
 //! --features nucleo-f401re --bin nucleo_f401re`; flash with probe-rs:

@@ -78,10 +78,10 @@ fn qemu_upload_stream_reset() {
     assert!(ticks > 0, "SysTick counts under -icount");
     let stack = device.stats().expect("stats").stack_peak;
     println!("stack high-water mark after the stream: {stack} bytes");
-    // The server (59.9 KB: one 14.3 KB f32 ray table, the 34.8 KB dot identifier, the 3.6 KB
-    // receive and 6.8 KB transmit buffers) is written in place into a static; requests are read
-    // in place and responses written straight into the transmit buffer, so the stack holds
-    // frames of small values only (the bar: 8 KiB, see firmware/README.md).
+    // The server (39.8 KB: one 14.3 KB f32 ray table, the 21.5 KB dot identifier, the 3.6 KB
+    // receive buffer) is written in place into a static; requests are read in place and
+    // responses streamed out as they are written, so the stack holds frames of small values
+    // only (the bar: 8 KiB, see firmware/README.md).
     assert!((1_000..=8 * 1024).contains(&stack), "stack peak {stack} B");
 
     // Pipelined: all 27 frames with 4 requests in flight (the device receives the next frame
