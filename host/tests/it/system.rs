@@ -262,3 +262,28 @@ mod cli {
     }
 }
 
+/// The rays' covariances use the image noise the data show: 0.05 px data calibrated with the
+/// default 0.5 px assumed state the same covariances as with 0.05 px assumed (they were 100×
+/// too large), for every model.
+#[test]
+fn ray_covariances_follow_the_measured_noise() {
+    use deltaz_host::accuracy::plate_poses;
+    use deltaz_host::plates::plate_images;
+    use deltaz_host::projector_calibration::{calibrate_projector, Model};
+    let mut scenario = Scenario::paper();
+    scenario.noise.image_sigma_px = 0.05;
+    let sim = simulate(&scenario, 3);
+    let (grid, inner) = deltaz_host::simulate::true_camera(&scenario);
+    let images = plate_images(&sim.plate_obs, &plate_poses(&sim, &grid, &inner).unwrap()).unwrap();
+    for model in [Model::Paper, Model::Joint, Model::Noncentral] {
+        let assumed = calibrate_projector(&grid, &inner, &images, model, 0.5).unwrap();
+        let right = calibrate_projector(&grid, &inner, &images, model, 0.05).unwrap();
+        for (a, b) in assumed.rays.iter().zip(&right.rays) {
+            for (ra, rb) in a.line_cov.0.iter().zip(&b.line_cov.0) {
+                for (x, y) in ra.iter().zip(rb) {
+                    assert!((x - y).abs() <= 1e-6 * y.abs(), "{model:?} ray {}", a.id);
+                }
+            }
+        }
+    }
+}
