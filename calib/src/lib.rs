@@ -1,7 +1,10 @@
-//! The deltaz calibration core: camera calibration by bundle adjustment, space resection,
-//! projector calibration (the ΔZ method and beyond), reconstruction with σ, and the comparison
-//! with reference points. Plain input types and typed errors; reading and writing files is the
-//! CLI crate's business.
+//! The deltaz calibration core: camera calibration by bundle adjustment ([`bundle`]), space
+//! resection ([`resection`]), projector calibration (the ΔZ method and beyond,
+//! [`projector_calibration`]), the whole-system adjustment with variance components and the
+//! covariance of every point ([`system_adjustment`]), reconstruction with σ ([`reconstruct`]),
+//! and the comparison with reference points ([`compare`]). Plain input types ([`input`]); reading
+//! and writing files is the CLI crate's business. Resection and bundle share the image residual
+//! ([`residual`]) and do not import each other's internals.
 #![deny(missing_docs)]
 
 pub mod bundle;

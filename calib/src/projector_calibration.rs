@@ -121,6 +121,11 @@ pub struct CalibratedRay {
 pub struct LineCovariance(pub [[f64; 3]; 2]);
 
 impl LineCovariance {
+    /// The covariance multiplied by `factor` (a variance factor σ0²).
+    pub fn scaled(&self, factor: f64) -> Self {
+        Self(self.0.map(|row| row.map(|v| v * factor)))
+    }
+
     /// The variance of the ray's X and Y at a height dz = Z − Z_p above the centre (mm²).
     pub fn lateral_variance(&self, dz: f64) -> [f64; 2] {
         self.0.map(|[v, c, s]| v + 2.0 * dz * c + dz * dz * s)
@@ -385,16 +390,21 @@ pub fn joint_adjustment(
         let unknowns = 3 + 2 * by_ray.len();
         let redundancy = observations.saturating_sub(unknowns).max(1);
         let sigma0_sq = chi2 / redundancy as f64;
-        result = Some(inverse.diagonal().map(|v| (v * sigma0_sq).sqrt()));
+        result = Some((
+            inverse.diagonal().map(|v| (v * sigma0_sq).sqrt()),
+            sigma0_sq,
+        ));
         if step.norm() < 1e-9 {
             break;
         }
     }
-    let centre_sigma = result.context("no iteration of the joint adjustment ran")?;
+    let (centre_sigma, variance_factor) =
+        result.context("no iteration of the joint adjustment ran")?;
     Ok(JointFit {
         centre,
         centre_sigma,
         slopes,
+        variance_factor,
     })
 }
 
@@ -407,6 +417,8 @@ pub struct JointFit {
     pub centre_sigma: Vector3<f64>,
     /// The slopes (a, b) per ray: dX/dZ and dY/dZ.
     pub slopes: BTreeMap<u16, [f64; 2]>,
+    /// σ0² relative to the a priori image noise: the image noise is σ0 × the one assumed.
+    pub variance_factor: f64,
 }
 
 /// Per ray id: its unit direction and its offset from the centre.
@@ -487,6 +499,9 @@ pub fn calibrate_projector(
     }
     let by_ray = plane_points(grid, inner, images, image_sigma_px)?;
     let (paper_centre, paper_sigma) = centre_by_delta_z(&by_ray)?;
+    // The rays' covariances use the image noise the data show, not the one assumed.
+    let joint = joint_adjustment(&by_ray, paper_centre)?;
+    let factor = joint.variance_factor;
     let (centre, centre_sigma, lines): (_, _, Lines) = match model {
         Model::Paper => {
             let lines = by_ray
@@ -501,7 +516,7 @@ pub fn calibrate_projector(
             (paper_centre, paper_sigma, lines)
         }
         Model::Joint => {
-            let fit = joint_adjustment(&by_ray, paper_centre)?;
+            let fit = joint;
             let lines = fit
                 .slopes
                 .into_iter()
@@ -510,9 +525,8 @@ pub fn calibrate_projector(
             (fit.centre, fit.centre_sigma, lines)
         }
         Model::Noncentral => {
-            let fit = joint_adjustment(&by_ray, paper_centre)?;
-            let lines = noncentral_lines(&by_ray, &fit.centre);
-            (fit.centre, fit.centre_sigma, lines)
+            let lines = noncentral_lines(&by_ray, &joint.centre);
+            (joint.centre, joint.centre_sigma, lines)
         }
     };
     let rays = by_ray
@@ -531,7 +545,7 @@ pub fn calibrate_projector(
                 planes: pts.len(),
                 miss_rms,
                 miss_max: misses.iter().copied().fold(0.0, f64::max),
-                line_cov: line_covariance(centre.z, pts),
+                line_cov: line_covariance(centre.z, pts).scaled(factor),
             }
         })
         .collect();

@@ -77,34 +77,17 @@ pub const MAX_IMAGE_SIDE: u32 = 65_536;
 pub const MAX_FOCAL_PX: f64 = 1e7;
 
 pub use deltaz_calib::residual::INNER_NAMES;
+use deltaz_calib::residual::{inner_from_array, inner_to_array};
 
 impl From<InnerParams> for InnerOrientation<f64> {
     fn from(p: InnerParams) -> Self {
-        InnerOrientation {
-            f: p.f,
-            cx: p.cx,
-            cy: p.cy,
-            k1: p.k1,
-            k2: p.k2,
-            k3: p.k3,
-            p1: p.p1,
-            p2: p.p2,
-        }
+        inner_from_array(p.to_array())
     }
 }
 
 impl From<InnerOrientation<f64>> for InnerParams {
     fn from(p: InnerOrientation<f64>) -> Self {
-        Self {
-            f: p.f,
-            cx: p.cx,
-            cy: p.cy,
-            k1: p.k1,
-            k2: p.k2,
-            k3: p.k3,
-            p1: p.p1,
-            p2: p.p2,
-        }
+        Self::from_array(inner_to_array(&p))
     }
 }
 
