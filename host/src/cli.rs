@@ -6,12 +6,10 @@ use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
-use crate::ply::{write_ply, Encoding};
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, plate_images,
     DotObservation, Model,
 };
-use crate::reconstruct::reconstruct as reconstruct_points;
 use crate::resection::resect_images;
 use crate::system::SystemContent;
 use crate::system::SystemFile;
@@ -104,49 +102,10 @@ pub fn dot_observations(path: &Path, obs: &[Observation]) -> Result<Vec<(String,
         .collect()
 }
 
-/// `deltaz reconstruct`: everything is computed before anything is written.
+/// `deltaz reconstruct`: streamed ([`crate::reconstruct_stream`]), nothing written on failure.
 pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
-    let (system, rig) = SystemFile::load(&args.system)?;
-    let calibration = system.line_covariances();
-    let obs = read_observations(&args.obs)?;
-    let dots = dot_observations(&args.obs, &obs)?;
-    let plain: Vec<DotObservation> = dots.iter().map(|(_, d)| *d).collect();
-    let points = reconstruct_points(
-        &rig,
-        &plain,
-        args.method.into(),
-        args.sigma_px,
-        Some(&calibration),
-    )
-    .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
-    let csv = args.csv.as_ref().map(|_| {
-        let mut text = String::from("image,point,X,Y,Z,miss");
-        if args.sigma_px.is_some() {
-            text += ",sigma_X,sigma_Y,sigma_Z";
-        }
-        text.push('\n');
-        for ((image, _), p) in dots.iter().zip(&points) {
-            text += &format!(
-                "{image},{},{},{},{},{}",
-                p.id, p.point.x, p.point.y, p.point.z, p.miss
-            );
-            if let Some(s) = p.sigma {
-                text += &format!(",{},{},{}", s.x, s.y, s.z);
-            }
-            text.push('\n');
-        }
-        text
-    });
-    let encoding = if args.ascii {
-        Encoding::Ascii
-    } else {
-        Encoding::BinaryLittleEndian
-    };
-    write_ply(&args.out, &points, encoding)?;
-    if let (Some(path), Some(text)) = (&args.csv, csv) {
-        write_atomic(path, text.as_bytes())?;
-    }
-    println!("{} points -> {}", points.len(), args.out.display());
+    let count = crate::reconstruct_stream::reconstruct_stream(args)?;
+    println!("{count} points -> {}", args.out.display());
     Ok(())
 }
 

@@ -17,49 +17,63 @@ pub enum Encoding {
     BinaryLittleEndian,
 }
 
-/// The whole PLY file as bytes.
-pub fn encode(points: &[ReconstructedPoint], encoding: Encoding) -> Vec<u8> {
-    let with_sigma = !points.is_empty() && points.iter().all(|p| p.sigma.is_some());
+/// The PLY header for `count` points, with the σ properties or not.
+pub fn header(count: usize, with_sigma: bool, encoding: Encoding) -> String {
     let format = match encoding {
         Encoding::Ascii => "ascii",
         Encoding::BinaryLittleEndian => "binary_little_endian",
     };
     let mut out = format!(
-        "ply\nformat {format} 1.0\ncomment deltaz point cloud, mm\nelement vertex {}\n\
+        "ply\nformat {format} 1.0\ncomment deltaz point cloud, mm\nelement vertex {count}\n\
          property double x\nproperty double y\nproperty double z\nproperty ushort ray_id\n\
-         property double miss\n",
-        points.len()
+         property double miss\n"
     );
     if with_sigma {
         out += "property double sigma_x\nproperty double sigma_y\nproperty double sigma_z\n";
     }
     out += "end_header\n";
-    let mut bytes = out.into_bytes();
-    for p in points {
-        let sigma = p.sigma.filter(|_| with_sigma);
-        match encoding {
-            Encoding::Ascii => {
-                let mut line = format!(
-                    "{} {} {} {} {}",
-                    p.point.x, p.point.y, p.point.z, p.id, p.miss
-                );
-                if let Some(s) = sigma {
-                    line += &format!(" {} {} {}", s.x, s.y, s.z);
-                }
-                line.push('\n');
-                bytes.extend_from_slice(line.as_bytes());
+    out
+}
+
+/// Appends one point's vertex (its σ only `with_sigma`).
+pub fn push_point(
+    bytes: &mut Vec<u8>,
+    p: &ReconstructedPoint,
+    with_sigma: bool,
+    encoding: Encoding,
+) {
+    let sigma = p.sigma.filter(|_| with_sigma);
+    match encoding {
+        Encoding::Ascii => {
+            let mut line = format!(
+                "{} {} {} {} {}",
+                p.point.x, p.point.y, p.point.z, p.id, p.miss
+            );
+            if let Some(s) = sigma {
+                line += &format!(" {} {} {}", s.x, s.y, s.z);
             }
-            Encoding::BinaryLittleEndian => {
-                for v in p.point.iter() {
-                    bytes.extend_from_slice(&v.to_le_bytes());
-                }
-                bytes.extend_from_slice(&p.id.to_le_bytes());
-                bytes.extend_from_slice(&p.miss.to_le_bytes());
-                for v in sigma.iter().flat_map(|s| s.iter()) {
-                    bytes.extend_from_slice(&v.to_le_bytes());
-                }
+            line.push('\n');
+            bytes.extend_from_slice(line.as_bytes());
+        }
+        Encoding::BinaryLittleEndian => {
+            for v in p.point.iter() {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+            bytes.extend_from_slice(&p.id.to_le_bytes());
+            bytes.extend_from_slice(&p.miss.to_le_bytes());
+            for v in sigma.iter().flat_map(|s| s.iter()) {
+                bytes.extend_from_slice(&v.to_le_bytes());
             }
         }
+    }
+}
+
+/// The whole PLY file as bytes.
+pub fn encode(points: &[ReconstructedPoint], encoding: Encoding) -> Vec<u8> {
+    let with_sigma = !points.is_empty() && points.iter().all(|p| p.sigma.is_some());
+    let mut bytes = header(points.len(), with_sigma, encoding).into_bytes();
+    for p in points {
+        push_point(&mut bytes, p, with_sigma, encoding);
     }
     bytes
 }

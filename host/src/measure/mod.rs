@@ -188,7 +188,7 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
                 .ok_or((*blob, Rejection::Fit))
         };
     // The blobs are independent: spread them over the cores, keep their order.
-    let verdicts = parallel_map(blobs.len(), centre);
+    let verdicts = crate::parallel::parallel_map(blobs.len(), centre);
     let mut targets = Vec::new();
     let mut rejected = Vec::new();
     for verdict in verdicts {
@@ -209,43 +209,6 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
 struct Scratch {
     exclude: Vec<[usize; 4]>,
     fit: fit::Scratch,
-}
-
-/// `f(scratch, i)` for i in 0..count on all cores (threads take blocks of 16 as they finish,
-/// each with its own scratch), the results in the order of i.
-pub(crate) fn parallel_map<S: Default, T: Send>(
-    count: usize,
-    f: impl Fn(&mut S, usize) -> T + Sync,
-) -> Vec<T> {
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    const BLOCK: usize = 16;
-    let next = AtomicUsize::new(0);
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let work = || {
-        let mut scratch = S::default();
-        let mut done = Vec::new();
-        loop {
-            let start = next.fetch_add(BLOCK, Ordering::Relaxed);
-            if start >= count {
-                return done;
-            }
-            for i in start..(start + BLOCK).min(count) {
-                done.push((i, f(&mut scratch, i)));
-            }
-        }
-    };
-    let mut all: Vec<(usize, T)> = std::thread::scope(|s| {
-        let handles: Vec<_> = (1..threads.min(count.div_ceil(BLOCK)))
-            .map(|_| s.spawn(work))
-            .collect();
-        let mut all = work();
-        for h in handles {
-            all.extend(h.join().expect("a measuring thread panicked"));
-        }
-        all
-    });
-    all.sort_unstable_by_key(|(i, _)| *i);
-    all.into_iter().map(|(_, t)| t).collect()
 }
 
 /// A decoded image: 8- and 16-bit grayscale are kept as decoded; colour is converted to 16-bit
