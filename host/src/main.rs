@@ -477,6 +477,7 @@ fn main() -> anyhow::Result<()> {
             let identifier = match (system, near, far) {
                 (Some(path), Some(near), Some(far)) => {
                     let (_, rig) = deltaz_host::system::SystemFile::load(&path)?;
+                    params.sensor = Some((rig.grid().width, rig.grid().height));
                     let cell = if rig.grid().width > 2000 { 32.0 } else { 16.0 };
                     let depth = deltaz_shared::identify::DepthRange { near, far };
                     let built = measure::HostIdentifier::new(&rig, depth, tolerance, cell)

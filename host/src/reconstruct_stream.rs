@@ -8,7 +8,8 @@
 //!
 //! Rows: with a `kind` column only the `dot` rows (an error when there are none), otherwise
 //! every row; `point` is the ray id. A ray seen twice in a run of rows of the same image is an
-//! error (the check needs no memory beyond the current image).
+//! error (the check needs no memory beyond the current image), and so is a dot off the
+//! calibration's sensor.
 
 use crate::cli::ReconstructArgs;
 use crate::io::{csv_reader, header_columns, number_field, optional_column, record_line};
@@ -107,10 +108,12 @@ struct Rows {
     kind: Option<usize>,
     image: String,
     seen: std::collections::HashSet<u16>,
+    /// The calibration's sensor (width, height): dots off it are errors.
+    sensor: (u32, u32),
 }
 
 impl Rows {
-    fn open(path: &Path) -> Result<Self> {
+    fn open(path: &Path, sensor: (u32, u32)) -> Result<Self> {
         let mut reader = csv_reader(path)?;
         let head = reader
             .headers()
@@ -123,6 +126,7 @@ impl Rows {
             records: reader.into_records(),
             image: String::new(),
             seen: Default::default(),
+            sensor,
         })
     }
 
@@ -165,6 +169,16 @@ impl Rows {
                 col: number_field(path, &record, cc, "col")?,
                 row: number_field(path, &record, cr, "row")?,
             };
+            let (w, h) = self.sensor;
+            if !(-0.5..=w as f64 - 0.5).contains(&dot.col)
+                || !(-0.5..=h as f64 - 0.5).contains(&dot.row)
+            {
+                bail!(FileError::at(
+                    path,
+                    line,
+                    format!("({}, {}) is off the {w} × {h} sensor", dot.col, dot.row)
+                ));
+            }
             if image != self.image {
                 self.image = image.to_owned();
                 self.seen.clear();
@@ -197,7 +211,7 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<usize> {
         Encoding::BinaryLittleEndian
     };
     let with_sigma = args.sigma_px.is_some();
-    let mut rows = Rows::open(&args.obs)?;
+    let mut rows = Rows::open(&args.obs, (rig.grid().width, rig.grid().height))?;
     let (vertices, mut vertex_file) = Pending::new(&args.out, "vertices")?;
     let mut csv = match &args.csv {
         Some(path) => {

@@ -64,6 +64,9 @@ pub struct MeasureParams {
     /// one symmetric ellipse (a dot merged into a target, a partly covered target) moves its
     /// gravity centre away from the fitted ellipse's centre.
     pub max_centre_shift: f64,
+    /// The calibration's sensor (width, height in pixels), when measuring for a calibrated
+    /// system: an image of another size is an error.
+    pub sensor: Option<(u32, u32)>,
 }
 
 impl Default for MeasureParams {
@@ -75,6 +78,7 @@ impl Default for MeasureParams {
             max_rms_sigma: 3.0,
             max_rms_fraction: 0.015,
             max_centre_shift: 0.25,
+            sensor: None,
         }
     }
 }
@@ -261,9 +265,25 @@ pub fn load_image(path: &Path) -> Result<LoadedImage> {
     })
 }
 
-/// Read and measure one image file; an image without any accepted target is an error.
+/// Read and measure one image file; an image without any accepted target, or of another size
+/// than [`MeasureParams::sensor`], is an error.
 pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> {
-    let measured = match load_image(path)? {
+    let image = load_image(path)?;
+    let size = match &image {
+        LoadedImage::Eight(b) => b.dimensions(),
+        LoadedImage::Sixteen(b) => b.dimensions(),
+    };
+    if let Some(sensor) = params.sensor.filter(|&s| s != size) {
+        bail!(
+            "{}: the image is {} × {} pixels, the calibration's sensor {} × {}",
+            path.display(),
+            size.0,
+            size.1,
+            sensor.0,
+            sensor.1
+        );
+    }
+    let measured = match image {
         LoadedImage::Eight(b) => measure(&view(&b, 1.0), params),
         LoadedImage::Sixteen(b) => measure(&view(&b, 257.0), params),
     };

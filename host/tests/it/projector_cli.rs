@@ -307,6 +307,29 @@ fn reconstruct_streams_across_batches() {
         "{}",
         stderr(&out)
     );
+    // A dot off the calibration's sensor.
+    std::fs::write(
+        d.join("off.csv"),
+        "image,point,col,row\nf1,305,300,200\nf1,306,768.2,10\n",
+    )
+    .unwrap();
+    let off = deltaz(
+        &[
+            "reconstruct",
+            "--system",
+            "system.json",
+            "--obs",
+            "off.csv",
+            "--out",
+            "off.ply",
+        ],
+        d,
+    );
+    assert!(
+        stderr(&off).contains("off.csv:3: (768.2, 10) is off the 768 × 512 sensor"),
+        "{}",
+        stderr(&off)
+    );
     let names: Vec<String> = std::fs::read_dir(d)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
