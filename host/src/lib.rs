@@ -17,6 +17,7 @@ pub mod projector_calibration;
 pub mod reconstruct;
 pub mod reconstruct_stream;
 pub mod resection;
+pub mod scan;
 pub mod simulate;
 pub mod svg;
 pub mod system;

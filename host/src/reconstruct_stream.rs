@@ -41,14 +41,14 @@ fn csv_line(text: &mut String, image: &str, p: &ReconstructedPoint) {
 }
 
 /// A temporary file next to its target, removed on drop unless renamed over the target.
-struct Pending {
+pub(crate) struct Pending {
     tmp: PathBuf,
-    target: PathBuf,
+    pub(crate) target: PathBuf,
     done: bool,
 }
 
 impl Pending {
-    fn new(target: &Path, tag: &str) -> Result<(Self, BufWriter<std::fs::File>)> {
+    pub(crate) fn new(target: &Path, tag: &str) -> Result<(Self, BufWriter<std::fs::File>)> {
         let dir = match target.parent() {
             Some(d) if !d.as_os_str().is_empty() => d,
             _ => Path::new("."),
@@ -71,7 +71,7 @@ impl Pending {
         Ok((pending, BufWriter::with_capacity(1 << 20, file)))
     }
 
-    fn commit(mut self, writer: BufWriter<std::fs::File>) -> Result<()> {
+    pub(crate) fn commit(mut self, writer: BufWriter<std::fs::File>) -> Result<()> {
         let file = writer
             .into_inner()
             .map_err(|e| e.into_error())

@@ -12,4 +12,5 @@ mod link_in_process;
 mod measure;
 mod measure_cli;
 mod projector_cli;
+mod scan;
 mod simulate_images;
