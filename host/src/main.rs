@@ -485,6 +485,7 @@ fn main() -> anyhow::Result<()> {
         }
         Command::BenchMeasure { repeats } => {
             print!("{}", measure::bench::run(repeats));
+            print!("{}", scan::identification());
             print!("{}", scan::bench()?);
         }
         Command::Scan {

@@ -365,3 +365,36 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
     }
     Ok(stats)
 }
+
+/// Time the epipolar identification of the paper's 440 dots on a plane 1740 mm away: building
+/// the lookup (once per calibration) and identifying a frame.
+pub fn identification() -> String {
+    use crate::simulate::{images::true_rig, Scenario};
+    use deltaz_shared::identify::{DepthRange, Identifier};
+    let rig = true_rig(&Scenario::paper());
+    let dots: Vec<(f64, f64)> = plane_dots(&rig, 1740.0, 0.0).iter().map(|d| d.1).collect();
+    let depth = DepthRange {
+        near: 1680.0,
+        far: 1800.0,
+    };
+    let start = Instant::now();
+    let ident = Identifier::<f64, 512, 2048, 8192>::new(&rig, depth, 1.0, 16.0)
+        .expect("the paper rig fits");
+    let build = start.elapsed().as_secs_f64();
+    let mut out = vec![Assignment::Unassigned; dots.len()];
+    let rounds = 200;
+    let start = Instant::now();
+    let mut identified = 0;
+    for _ in 0..rounds {
+        identified = ident.identify_frame(&dots, &mut out);
+    }
+    let per_frame = start.elapsed().as_secs_f64() / f64::from(rounds);
+    format!(
+        "identification (paper rig, 1680-1800 mm, 1 px): lookup built in {:.2} ms ({} entries); {identified} of {} dots in {:.1} µs per frame ({:.2} µs per dot)\n",
+        build * 1e3,
+        ident.entries(),
+        dots.len(),
+        per_frame * 1e6,
+        per_frame * 1e6 / dots.len() as f64
+    )
+}
