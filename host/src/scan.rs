@@ -3,7 +3,9 @@
 //! over the cores) while the caller's thread identifies and reconstructs frame n and hands its
 //! points to the output.
 
-use crate::measure::{load_image, measure, HostIdentifier, LoadedImage, MeasureParams};
+use crate::measure::{
+    host_identifier, load_image, measure, HostIdentifier, LoadedImage, MeasureParams,
+};
 use crate::projector_calibration::DotObservation;
 use crate::reconstruct::{reconstruct, ReconstructedPoint};
 use crate::system::SystemRig;
@@ -260,10 +262,7 @@ pub fn bench() -> Result<String> {
         near: 1600.0,
         far: 1860.0,
     };
-    let identifier = Box::new(
-        HostIdentifier::new(&rig, depth, 1.0, 16.0)
-            .map_err(|e| anyhow::anyhow!("identification: {e}"))?,
-    );
+    let identifier = host_identifier(&rig, depth, 1.0, 16.0)?;
     let count = 60;
     let load = |i: usize| {
         Ok((
@@ -317,10 +316,8 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
     use std::io::Write;
     let (_, rig) = crate::system::SystemFile::load(&args.system)?;
     let cell = if rig.grid().width > 2000 { 32.0 } else { 16.0 };
-    let identifier = Box::new(
-        HostIdentifier::new(&rig, args.depth, args.tolerance, cell)
-            .map_err(|e| anyhow::anyhow!("{}: identification: {e}", args.system.display()))?,
-    );
+    let identifier = host_identifier(&rig, args.depth, args.tolerance, cell)
+        .with_context(|| args.system.display().to_string())?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
     let mut csv = match &args.csv {

@@ -302,6 +302,27 @@ pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> 
 /// it on the main thread or on one with a large stack, then box it.
 pub type HostIdentifier = Identifier<f64, 4096, 16384, 65536>;
 
+/// Build a [`HostIdentifier`] on a thread with a stack large enough for it, boxed.
+pub fn host_identifier(
+    rig: &crate::system::SystemRig,
+    depth: deltaz_shared::identify::DepthRange<f64>,
+    tolerance: f64,
+    cell: f64,
+) -> Result<Box<HostIdentifier>> {
+    std::thread::scope(|s| {
+        std::thread::Builder::new()
+            .stack_size(16 << 20)
+            .spawn_scoped(s, || {
+                HostIdentifier::new(rig, depth, tolerance, cell)
+                    .map(Box::new)
+                    .map_err(|e| anyhow::anyhow!("identification: {e}"))
+            })
+            .context("cannot start a thread")?
+            .join()
+            .map_err(|_| anyhow::anyhow!("identification: the building thread panicked"))?
+    })
+}
+
 /// Observations of measured images, and a line for every dot that identification left out.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct MeasuredImages {

@@ -3,7 +3,7 @@
 //! propagated from the measured image noise, and the command's files.
 
 use deltaz_host::measure::render::{Background, Scene, Spot};
-use deltaz_host::measure::{HostIdentifier, LoadedImage, MeasureParams};
+use deltaz_host::measure::{host_identifier, LoadedImage, MeasureParams};
 use deltaz_host::reconstruct::covariance;
 use deltaz_host::scan::{plane_dots, scan, FramePoints, PlaneDot};
 use deltaz_host::simulate::{images::true_rig, Scenario};
@@ -47,17 +47,7 @@ fn plane_scanned_at_the_image_noise_floor() {
         near: 1600.0,
         far: 1860.0,
     };
-    // The host identifier is about 0.6 MB, built on the stack: give it a big one.
-    let identifier = std::thread::scope(|s| {
-        std::thread::Builder::new()
-            .stack_size(16 << 20)
-            .spawn_scoped(s, || {
-                Box::new(HostIdentifier::new(&rig, depth, 1.0, 16.0).unwrap())
-            })
-            .unwrap()
-            .join()
-            .unwrap()
-    });
+    let identifier = host_identifier(&rig, depth, 1.0, 16.0).unwrap();
     let mut scanned: Vec<FramePoints> = Vec::new();
     let load = |i: usize| Ok((format!("f{i}"), LoadedImage::Eight(frames[i].0.clone())));
     let stats = scan(
