@@ -5,16 +5,15 @@
 use crate::bundle::{calibrate, CalibrationOptions};
 use crate::camera_calibration::{build_problem, camera_prior};
 use crate::compare::{assess, match_points};
-use crate::io::atomic::{write_all_atomic, write_atomic};
+use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
 use crate::plates::{plate_images, plate_observations, resect_all, resect_images};
-use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
+use crate::ply::RIG_FRAME;
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
 };
-use crate::reconstruct::reconstruct as reconstruct_points;
 use crate::system::SystemContent;
 use crate::system::{SystemFile, Warnings};
 use anyhow::{bail, Result};
@@ -224,93 +223,23 @@ pub fn dot_observations(path: &Path, obs: &[Observation]) -> Result<Vec<(String,
         .collect()
 }
 
-/// `deltaz reconstruct`: everything is computed before anything is written.
+/// `deltaz reconstruct`: streamed ([`crate::reconstruct_stream`]), nothing written on failure.
 pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
-    let (system, rig) = SystemFile::load(&args.system)?;
-    let calibration = system.line_covariances();
-    let obs = read_observations(&args.obs)?;
-    let dots = dot_observations(&args.obs, &obs)?;
-    let plain: Vec<DotObservation> = dots.iter().map(|(_, d)| *d).collect();
-    let model = system
-        .content
-        .model()
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.system.display()))?;
-    let mut points = reconstruct_points(
-        &rig,
-        &plain,
-        args.method.into(),
-        args.sigma_px.filter(|_| model.is_none()),
-        Some(&calibration),
-    )
-    .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
-    // With the whole-system adjustment's covariance every point gets its σ (camera, projector
-    // and the dots' estimated image noise, or --sigma-px).
-    if let Some(mut model) = model {
-        if let Some(s) = args.sigma_px {
-            model.sigma_dots_px = s;
-        }
-        for (p, dot) in points.iter_mut().zip(&plain) {
-            let q = model
-                .reconstruct(rig.grid(), dot, args.method.into())
-                .map_err(|e| anyhow::anyhow!("{}: {e}", args.obs.display()))?;
-            p.sigma = Some((q.image + q.calibration).diagonal().map(f64::sqrt));
-        }
-    }
-    let csv = args.csv.as_ref().map(|_| {
-        let mut text = String::from("image,point,X,Y,Z,miss");
-        if points.iter().any(|p| p.sigma.is_some()) {
-            text += ",sigma_X,sigma_Y,sigma_Z";
-        }
-        text.push('\n');
-        for ((image, _), p) in dots.iter().zip(&points) {
-            text += &format!(
-                "{image},{},{},{},{},{}",
-                p.id, p.point.x, p.point.y, p.point.z, p.miss
-            );
-            if let Some(s) = p.sigma {
-                text += &format!(",{},{},{}", s.x, s.y, s.z);
-            }
-            text.push('\n');
-        }
-        text
-    });
-    let encoding = if args.ascii {
-        Encoding::Ascii
-    } else {
-        Encoding::BinaryLittleEndian
-    };
-    let images = crate::io::observations::image_labels(&obs);
-    let info = CloudInfo {
-        frame: RIG_FRAME.to_owned(),
-        fingerprint: Some(system.fingerprint.clone()),
-        frames: (images.len() > 1).then(|| {
-            dots.iter()
-                .map(|(image, _)| images.iter().position(|i| i == image).unwrap_or(0) as u32)
-                .collect()
-        }),
-    };
-    let ply = encode_with(&points, encoding, &info);
-    let mut files: Vec<(&Path, &[u8])> = vec![(&args.out, &ply)];
-    if let (Some(path), Some(text)) = (&args.csv, &csv) {
-        files.push((path, text.as_bytes()));
-    }
-    write_all_atomic(&files)?;
-    let miss_rms =
-        (points.iter().map(|p| p.miss * p.miss).sum::<f64>() / points.len().max(1) as f64).sqrt();
+    let s = crate::reconstruct_stream::reconstruct_stream(args)?;
     output.result(
         &format!(
             "{} points from {} images, miss distance RMS {:.3} mm, in the rig frame (mm) -> {}\n",
-            points.len(),
-            images.len(),
-            miss_rms,
+            s.points,
+            s.images,
+            s.miss_rms,
             args.out.display()
         ),
         &serde_json::json!({
-            "points": points.len(),
-            "images": images.len(),
-            "miss_rms_mm": miss_rms,
+            "points": s.points,
+            "images": s.images,
+            "miss_rms_mm": s.miss_rms,
             "frame": RIG_FRAME,
-            "fingerprint": system.fingerprint,
+            "fingerprint": s.fingerprint,
             "out": args.out,
             "csv": args.csv,
         }),

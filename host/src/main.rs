@@ -1,6 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
-use deltaz_host::{bundle, cli, demo, device_cli, io, measure, simulate};
+use deltaz_host::{bundle, cli, demo, device_cli, io, measure, scan, simulate};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -137,6 +137,33 @@ enum Command {
         /// Repetitions (the best is reported), 1 to 100.
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
+    },
+    /// Scan camera frames in process: measure, identify and reconstruct each frame (pipelined
+    /// across the cores); one PLY per frame in OUT, optionally a CSV of all points.
+    Scan {
+        /// Folder of frames (PNG, TIFF, JPEG), scanned in name order.
+        frames: PathBuf,
+        /// The calibrated system (system.json).
+        #[arg(long)]
+        system: PathBuf,
+        /// Nearest surface distance from the camera along its axis (mm).
+        #[arg(long)]
+        near: f64,
+        /// Farthest surface distance from the camera along its axis (mm).
+        #[arg(long)]
+        far: f64,
+        /// Largest distance of a dot from its ray's epipolar segment (px).
+        #[arg(long, default_value_t = 1.0)]
+        tolerance: f64,
+        /// Output folder: OUT/<frame>.ply.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also a CSV `frame,image,point,X,Y,Z,miss` of all frames.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
+        #[arg(long, default_value = "closest")]
+        method: cli::MethodArg,
     },
     /// Calibration steps.
     Calibrate {
@@ -651,7 +678,40 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             output.result(&poses.table(), &serde_json::to_value(&poses)?)?;
         }
-        Command::BenchMeasure { repeats } => print!("{}", measure::bench::run(repeats.into())),
+        Command::BenchMeasure { repeats } => {
+            print!("{}", measure::bench::run(repeats.into()));
+            print!("{}", scan::identification());
+            print!("{}", scan::bench()?);
+        }
+        Command::Scan {
+            frames,
+            system,
+            near,
+            far,
+            tolerance,
+            out,
+            csv,
+            method,
+        } => {
+            let stats = scan::scan_command(&scan::ScanArgs {
+                system,
+                frames: scan::frame_files(&frames)?,
+                depth: deltaz_shared::identify::DepthRange { near, far },
+                tolerance,
+                out: out.clone(),
+                csv,
+                method: method.into(),
+            })?;
+            println!(
+                "{} frames, {} points in {:.2} s ({:.1} frames/s, latency {:.1} ms) -> {}",
+                stats.frames,
+                stats.points,
+                stats.elapsed.as_secs_f64(),
+                stats.frames_per_second(),
+                stats.mean_latency.as_secs_f64() * 1e3,
+                out.display()
+            );
+        }
         Command::Measure {
             images,
             out,
@@ -672,6 +732,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let identifier = match (system, near, far) {
                 (Some(path), Some(near), Some(far)) => {
                     let (_, rig) = deltaz_host::system::SystemFile::load(&path)?;
+                    params.sensor = Some((rig.grid().width, rig.grid().height));
                     let cell = if rig.grid().width > 2000 { 32.0 } else { 16.0 };
                     let depth = deltaz_shared::identify::DepthRange { near, far };
                     let built = measure::HostIdentifier::new(&rig, depth, tolerance, cell)

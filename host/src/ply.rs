@@ -32,7 +32,18 @@ pub struct CloudInfo {
 
 /// The frame of clouds reconstructed with a system.json.
 pub const RIG_FRAME: &str =
-    "rig frame of the calibration (the 1st plate image of the projector calibration)";
+    "rig frame of the calibration (the camera system for `calibrate system`, the 1st plate image's frame for `calibrate projector`)";
+
+/// Which properties every vertex of a cloud has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layout {
+    /// ASCII or binary.
+    pub encoding: Encoding,
+    /// `sigma_x sigma_y sigma_z` after `miss`.
+    pub sigma: bool,
+    /// `frame` (uint) last.
+    pub frame: bool,
+}
 
 /// The whole PLY file as bytes, with the rig frame and no fingerprint in its header.
 pub fn encode(points: &[ReconstructedPoint], encoding: Encoding) -> Vec<u8> {
@@ -48,9 +59,23 @@ pub fn encode(points: &[ReconstructedPoint], encoding: Encoding) -> Vec<u8> {
 
 /// The whole PLY file as bytes; header comments give units, frame and fingerprint.
 pub fn encode_with(points: &[ReconstructedPoint], encoding: Encoding, info: &CloudInfo) -> Vec<u8> {
-    let with_sigma = !points.is_empty() && points.iter().all(|p| p.sigma.is_some());
     let frames = info.frames.as_deref().filter(|f| f.len() == points.len());
-    let format = match encoding {
+    let layout = Layout {
+        encoding,
+        sigma: !points.is_empty() && points.iter().all(|p| p.sigma.is_some()),
+        frame: frames.is_some(),
+    };
+    let mut bytes = header(points.len(), &layout, info).into_bytes();
+    for (index, p) in points.iter().enumerate() {
+        push_point(&mut bytes, p, frames.map(|f| f[index]), &layout);
+    }
+    bytes
+}
+
+/// The PLY header for `count` vertices of `layout`; comments give units, frame and fingerprint
+/// (`info.frames` is not used: `layout.frame` says whether the property is there).
+pub fn header(count: usize, layout: &Layout, info: &CloudInfo) -> String {
+    let format = match layout.encoding {
         Encoding::Ascii => "ascii",
         Encoding::BinaryLittleEndian => "binary_little_endian",
     };
@@ -63,56 +88,56 @@ pub fn encode_with(points: &[ReconstructedPoint], encoding: Encoding, info: &Clo
     if let Some(fingerprint) = &info.fingerprint {
         out += &format!("comment calibration fingerprint: {fingerprint}\n");
     }
-    if frames.is_some() {
+    if layout.frame {
         out += "comment frame property: index of the image in the observations, from 0\n";
     }
     out += &format!(
-        "element vertex {}\nproperty double x\nproperty double y\nproperty double z\n\
-         property ushort ray_id\nproperty double miss\n",
-        points.len()
+        "element vertex {count}\nproperty double x\nproperty double y\nproperty double z\n\
+         property ushort ray_id\nproperty double miss\n"
     );
-    if with_sigma {
+    if layout.sigma {
         out += "property double sigma_x\nproperty double sigma_y\nproperty double sigma_z\n";
     }
-    if frames.is_some() {
+    if layout.frame {
         out += "property uint frame\n";
     }
     out += "end_header\n";
-    let mut bytes = out.into_bytes();
-    for (index, p) in points.iter().enumerate() {
-        let sigma = p.sigma.filter(|_| with_sigma);
-        let frame = frames.map(|f| f[index]);
-        match encoding {
-            Encoding::Ascii => {
-                let mut line = format!(
-                    "{} {} {} {} {}",
-                    p.point.x, p.point.y, p.point.z, p.id, p.miss
-                );
-                if let Some(s) = sigma {
-                    line += &format!(" {} {} {}", s.x, s.y, s.z);
-                }
-                if let Some(f) = frame {
-                    line += &format!(" {f}");
-                }
-                line.push('\n');
-                bytes.extend_from_slice(line.as_bytes());
+    out
+}
+
+/// Appends one vertex of `layout` (σ only when the layout has it; `frame` when it has one).
+pub fn push_point(bytes: &mut Vec<u8>, p: &ReconstructedPoint, frame: Option<u32>, layout: &Layout) {
+    let sigma = p.sigma.filter(|_| layout.sigma);
+    let frame = frame.filter(|_| layout.frame);
+    match layout.encoding {
+        Encoding::Ascii => {
+            let mut line = format!(
+                "{} {} {} {} {}",
+                p.point.x, p.point.y, p.point.z, p.id, p.miss
+            );
+            if let Some(s) = sigma {
+                line += &format!(" {} {} {}", s.x, s.y, s.z);
             }
-            Encoding::BinaryLittleEndian => {
-                for v in p.point.iter() {
-                    bytes.extend_from_slice(&v.to_le_bytes());
-                }
-                bytes.extend_from_slice(&p.id.to_le_bytes());
-                bytes.extend_from_slice(&p.miss.to_le_bytes());
-                for v in sigma.iter().flat_map(|s| s.iter()) {
-                    bytes.extend_from_slice(&v.to_le_bytes());
-                }
-                if let Some(f) = frame {
-                    bytes.extend_from_slice(&f.to_le_bytes());
-                }
+            if let Some(f) = frame {
+                line += &format!(" {f}");
+            }
+            line.push('\n');
+            bytes.extend_from_slice(line.as_bytes());
+        }
+        Encoding::BinaryLittleEndian => {
+            for v in p.point.iter() {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+            bytes.extend_from_slice(&p.id.to_le_bytes());
+            bytes.extend_from_slice(&p.miss.to_le_bytes());
+            for v in sigma.iter().flat_map(|s| s.iter()) {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+            if let Some(f) = frame {
+                bytes.extend_from_slice(&f.to_le_bytes());
             }
         }
     }
-    bytes
 }
 
 /// The labelled points of a PLY cloud for `compare`: the label is the `ray_id` (with a `frame`
@@ -209,14 +234,22 @@ pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
         if values.len() != properties.len() || values.iter().any(|v| !v.is_finite()) {
             return Err(problem("wrong count of values or a value not finite"));
         }
-        let label = match (ray, frame) {
-            (Some(r), Some(f)) => format!("{}:{}", values[f], values[r]),
-            (Some(r), None) => values[r].to_string(),
-            _ => vertex.to_string(),
+        let label = match ray {
+            Some(r) => values[r].to_string(),
+            None => vertex.to_string(),
         };
-        points.push((label, Vector3::new(values[x], values[y], values[z])));
+        let frame = frame.map(|f| values[f]);
+        points.push((label, frame, Vector3::new(values[x], values[y], values[z])));
     }
-    Ok(points)
+    // The frame joins the label only when the cloud holds several frames.
+    let several = points.windows(2).any(|w| w[0].1 != w[1].1);
+    Ok(points
+        .into_iter()
+        .map(|(label, frame, point)| match frame.filter(|_| several) {
+            Some(f) => (format!("{f}:{label}"), point),
+            None => (label, point),
+        })
+        .collect())
 }
 
 /// Bytes of a PLY scalar type.

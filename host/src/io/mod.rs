@@ -191,6 +191,53 @@ pub(crate) fn records(path: &Path) -> Result<(csv::StringRecord, Vec<csv::String
     Ok((header, rows))
 }
 
+/// A streaming CSV reader configured like [`records`] (headers on, whitespace trimmed, `#`
+/// comments) for files too large to hold: carriage returns before a line feed are dropped on
+/// the way in, so the csv crate's line numbers are right for CRLF files too.
+pub(crate) fn csv_reader(path: &Path) -> Result<csv::Reader<LfOnly<std::fs::File>>> {
+    let file = std::fs::File::open(path).map_err(|e| FileError::whole(path, e.to_string()))?;
+    Ok(csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .flexible(true)
+        .comment(Some(b'#'))
+        .from_reader(LfOnly {
+            inner: std::io::BufReader::new(file),
+        }))
+}
+
+/// A reader that turns CRLF line ends into LF (a `\r` not followed by `\n` is kept).
+pub(crate) struct LfOnly<R> {
+    inner: std::io::BufReader<R>,
+}
+
+impl<R: std::io::Read> std::io::Read for LfOnly<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        use std::io::BufRead;
+        let mut n = 0;
+        while n < out.len() {
+            let buf = self.inner.fill_buf()?;
+            if buf.is_empty() {
+                break;
+            }
+            let room = buf.len().min(out.len() - n);
+            let run = buf[..room].iter().position(|&b| b == b'\r').unwrap_or(room);
+            if run > 0 {
+                out[n..n + run].copy_from_slice(&buf[..run]);
+                n += run;
+                self.inner.consume(run);
+                continue;
+            }
+            // A carriage return: dropped when a line feed follows.
+            self.inner.consume(1);
+            if self.inner.fill_buf()?.first() != Some(&b'\n') {
+                out[n] = b'\r';
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+}
+
 /// CSV text of a header and rows, fields quoted where needed (labels with commas or quotes).
 pub(crate) fn csv_text<'a>(
     header: &[&str],

@@ -103,7 +103,7 @@ impl BackgroundField {
         // Every other row and column of a large tile is enough for its median (256 of 32²).
         let stride = if tile >= 16 { 2 } else { 1 };
         // Rows of tiles in parallel, each with its own buffer.
-        let rows = super::parallel_map(ny, |buf: &mut Vec<f64>, ty| {
+        let rows = crate::parallel::parallel_map(ny, |buf: &mut Vec<f64>, ty| {
             (0..nx)
                 .map(|tx| {
                     buf.clear();

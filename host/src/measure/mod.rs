@@ -64,6 +64,9 @@ pub struct MeasureParams {
     /// one symmetric ellipse (a dot merged into a target, a partly covered target) moves its
     /// gravity centre away from the fitted ellipse's centre.
     pub max_centre_shift: f64,
+    /// The calibration's sensor (width, height in pixels), when measuring for a calibrated
+    /// system: an image of another size is an error.
+    pub sensor: Option<(u32, u32)>,
 }
 
 impl Default for MeasureParams {
@@ -75,6 +78,7 @@ impl Default for MeasureParams {
             max_rms_sigma: 3.0,
             max_rms_fraction: 0.015,
             max_centre_shift: 0.25,
+            sensor: None,
         }
     }
 }
@@ -188,7 +192,7 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
                 .ok_or((*blob, Rejection::Fit))
         };
     // The blobs are independent: spread them over the cores, keep their order.
-    let verdicts = parallel_map(blobs.len(), centre);
+    let verdicts = crate::parallel::parallel_map(blobs.len(), centre);
     let mut targets = Vec::new();
     let mut rejected = Vec::new();
     for verdict in verdicts {
@@ -209,43 +213,6 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
 struct Scratch {
     exclude: Vec<[usize; 4]>,
     fit: fit::Scratch,
-}
-
-/// `f(scratch, i)` for i in 0..count on all cores (threads take blocks of 16 as they finish,
-/// each with its own scratch), the results in the order of i.
-pub(crate) fn parallel_map<S: Default, T: Send>(
-    count: usize,
-    f: impl Fn(&mut S, usize) -> T + Sync,
-) -> Vec<T> {
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    const BLOCK: usize = 16;
-    let next = AtomicUsize::new(0);
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let work = || {
-        let mut scratch = S::default();
-        let mut done = Vec::new();
-        loop {
-            let start = next.fetch_add(BLOCK, Ordering::Relaxed);
-            if start >= count {
-                return done;
-            }
-            for i in start..(start + BLOCK).min(count) {
-                done.push((i, f(&mut scratch, i)));
-            }
-        }
-    };
-    let mut all: Vec<(usize, T)> = std::thread::scope(|s| {
-        let handles: Vec<_> = (1..threads.min(count.div_ceil(BLOCK)))
-            .map(|_| s.spawn(work))
-            .collect();
-        let mut all = work();
-        for h in handles {
-            all.extend(h.join().expect("a measuring thread panicked"));
-        }
-        all
-    });
-    all.sort_unstable_by_key(|(i, _)| *i);
-    all.into_iter().map(|(_, t)| t).collect()
 }
 
 /// A decoded image: 8- and 16-bit grayscale are kept as decoded; colour is converted to 16-bit
@@ -298,9 +265,25 @@ pub fn load_image(path: &Path) -> Result<LoadedImage> {
     })
 }
 
-/// Read and measure one image file; an image without any accepted target is an error.
+/// Read and measure one image file; an image without any accepted target, or of another size
+/// than [`MeasureParams::sensor`], is an error.
 pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> {
-    let measured = match load_image(path)? {
+    let image = load_image(path)?;
+    let size = match &image {
+        LoadedImage::Eight(b) => b.dimensions(),
+        LoadedImage::Sixteen(b) => b.dimensions(),
+    };
+    if let Some(sensor) = params.sensor.filter(|&s| s != size) {
+        bail!(
+            "{}: the image is {} × {} pixels, the calibration's sensor {} × {}",
+            path.display(),
+            size.0,
+            size.1,
+            sensor.0,
+            sensor.1
+        );
+    }
+    let measured = match image {
         LoadedImage::Eight(b) => measure(&view(&b, 1.0), params),
         LoadedImage::Sixteen(b) => measure(&view(&b, 257.0), params),
     };
@@ -318,6 +301,27 @@ pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> 
 /// in 32-pixel cells). It is about 0.6 MB and [`Identifier::new`] builds it on the stack: build
 /// it on the main thread or on one with a large stack, then box it.
 pub type HostIdentifier = Identifier<f64, 4096, 16384, 65535>;
+
+/// Build a [`HostIdentifier`] on a thread with a stack large enough for it, boxed.
+pub fn host_identifier(
+    rig: &crate::system::SystemRig,
+    depth: deltaz_shared::identify::DepthRange<f64>,
+    tolerance: f64,
+    cell: f64,
+) -> Result<Box<HostIdentifier>> {
+    std::thread::scope(|s| {
+        std::thread::Builder::new()
+            .stack_size(16 << 20)
+            .spawn_scoped(s, || {
+                HostIdentifier::new(rig, depth, tolerance, cell)
+                    .map(Box::new)
+                    .map_err(|e| anyhow::anyhow!("identification: {e}"))
+            })
+            .context("cannot start a thread")?
+            .join()
+            .map_err(|_| anyhow::anyhow!("identification: the building thread panicked"))?
+    })
+}
 
 /// Observations of measured images, and a line for every dot that identification left out.
 #[derive(Debug, Clone, PartialEq, Default)]

@@ -1,6 +1,6 @@
 //! `--json` and `--quiet`: one JSON object on stdout with the figures, nothing on stderr when
 //! quiet; the PLY of `reconstruct` read back by `compare`, its header naming units, frame and
-//! the calibration's fingerprint, a `frame` property when several images are merged.
+//! the calibration's fingerprint, a `frame` property (the image's index) that tells merged images apart.
 
 use deltaz_host::io::camera_file::{write_camera, CameraFile};
 use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
@@ -78,7 +78,7 @@ fn json_figures_and_ply_round_trip() {
     let ply = std::fs::read(d.join("p1.ply")).unwrap();
     let header = String::from_utf8_lossy(&ply[..600]);
     assert!(header.contains(&format!("comment calibration fingerprint: {fingerprint}\n")));
-    assert!(header.contains("comment frame: rig frame") && !header.contains("property uint frame"));
+    assert!(header.contains("comment frame: rig frame") && header.contains("property uint frame"));
     let same = json(
         d,
         "compare --reconstructed p1.ply --reference p1_points.csv",

@@ -18,5 +18,6 @@ mod measure_cli;
 mod projector_cli;
 mod readme;
 mod residuals_cli;
+mod scan;
 mod simulate_images;
 mod system;

@@ -203,6 +203,22 @@ fn image_files_and_errors() {
         ("field16", "m1")
     );
 
+    // Measuring for a calibration whose sensor has another size.
+    let sensor = Some((scene.width as u32 + 1, scene.height as u32));
+    let err = measure_file(
+        &png16,
+        &MeasureParams {
+            sensor,
+            ..MeasureParams::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("field16.png: the image is") && err.contains("sensor"),
+        "{err}"
+    );
+
     let bytes = std::fs::read(&png16).unwrap();
     let cases: [(&str, Vec<u8>, &str); 4] = [
         ("empty.png", vec![], "the file is empty"),

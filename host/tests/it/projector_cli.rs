@@ -183,7 +183,8 @@ fn bad_input_is_named_and_nothing_is_written() {
     );
     assert!(!out.status.success());
     assert!(
-        stderr(&out).contains("observation 2 (ray 2121"),
+        stderr(&out)
+            .contains("unknown.csv:3: ray 2121 at (310, 210): the projector has no ray 2121"),
         "{}",
         stderr(&out)
     );
@@ -215,4 +216,129 @@ fn bad_input_is_named_and_nothing_is_written() {
         stderr(&out)
     );
     assert!(!d.join("u.ply").exists());
+}
+
+/// Reconstruction streams in batches of 65,536 rows: 70,000 dots (the 3rd plate's, over many
+/// frames) give the same points as the library one by one, at the batch boundary too; a bad row
+/// after the first batch fails naming its line and leaves no output and no temporary file.
+#[test]
+fn reconstruct_streams_across_batches() {
+    use deltaz_host::projector_calibration::DotObservation;
+    use deltaz_host::reconstruct::reconstruct;
+    use deltaz_host::system::SystemFile;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    setup(d);
+    assert!(calibrate(d, "plate_control.csv", "plate_obs.csv", "paper")
+        .status
+        .success());
+    let obs = std::fs::read_to_string(d.join("plate_obs.csv")).unwrap();
+    let plate: Vec<(u16, f64, f64)> = obs
+        .lines()
+        .filter(|l| l.starts_with("p3,") && l.ends_with(",dot"))
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (
+                f[1].parse().unwrap(),
+                f[2].parse().unwrap(),
+                f[3].parse().unwrap(),
+            )
+        })
+        .collect();
+    let total = 70_000;
+    let mut text = String::from("image,point,col,row,kind\n");
+    let mut dots = Vec::new();
+    for k in 0..total {
+        let (id, col, row) = plate[k % plate.len()];
+        // Each frame shifts its dots a little, so that frames differ.
+        let frame = k / plate.len();
+        let (col, row) = (col + 0.01 * frame as f64, row);
+        text += &format!("f{frame},{id},{col},{row},dot\n");
+        dots.push(DotObservation { id, col, row });
+    }
+    std::fs::write(d.join("many.csv"), &text).unwrap();
+    let args = [
+        "reconstruct",
+        "--system",
+        "system.json",
+        "--obs",
+        "many.csv",
+        "--out",
+        "many.ply",
+        "--csv",
+        "many.csv.out",
+    ];
+    let out = deltaz(&args, d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let ply = std::fs::read(d.join("many.ply")).unwrap();
+    let head = b"element vertex 70000\n";
+    assert!(ply.windows(head.len()).any(|w| w == head));
+    let body = ply.len() - (ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11);
+    assert_eq!(body, total * (3 * 8 + 2 + 8));
+    let csv = std::fs::read_to_string(d.join("many.csv.out")).unwrap();
+    let lines: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(lines.len(), total);
+    let (_, rig) = SystemFile::load(&d.join("system.json")).unwrap();
+    let method = deltaz_shared::rig::Method::ClosestApproach;
+    for k in [0, 65_535, 65_536, total - 1] {
+        let want = reconstruct(&rig, &dots[k..=k], method, None, None).unwrap()[0];
+        let got: Vec<f64> = lines[k]
+            .split(',')
+            .skip(2)
+            .map(|v| v.parse().unwrap())
+            .collect();
+        assert_eq!(
+            got,
+            [want.point.x, want.point.y, want.point.z, want.miss],
+            "row {k}"
+        );
+    }
+    // A bad row in the second batch: no output, old or new, and nothing temporary.
+    std::fs::remove_file(d.join("many.ply")).unwrap();
+    std::fs::remove_file(d.join("many.csv.out")).unwrap();
+    let mut bad: Vec<String> = text.lines().map(str::to_owned).collect();
+    bad[66_001] = format!("f150,{},x,200,dot", plate[0].0);
+    let bad = bad.join("\n");
+    std::fs::write(d.join("many.csv"), bad).unwrap();
+    let out = deltaz(&args, d);
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("many.csv:66002: `col` is not a number"),
+        "{}",
+        stderr(&out)
+    );
+    // A dot off the calibration's sensor.
+    std::fs::write(
+        d.join("off.csv"),
+        "image,point,col,row\nf1,305,300,200\nf1,306,768.2,10\n",
+    )
+    .unwrap();
+    let off = deltaz(
+        &[
+            "reconstruct",
+            "--system",
+            "system.json",
+            "--obs",
+            "off.csv",
+            "--out",
+            "off.ply",
+        ],
+        d,
+    );
+    assert!(
+        stderr(&off).contains("off.csv:3: (768.2, 10) is off the 768 × 512 sensor"),
+        "{}",
+        stderr(&off)
+    );
+    let names: Vec<String> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names
+            .iter()
+            .all(|n| !n.starts_with("many.") || n == "many.csv")
+            && names.iter().all(|n| !n.contains(".tmp")),
+        "{names:?}"
+    );
 }

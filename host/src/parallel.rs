@@ -1,0 +1,39 @@
+//! Independent work items spread over all cores, results in order (blobs of an image, dots of
+//! a reconstruction batch).
+
+/// `f(scratch, i)` for i in 0..count on all cores (threads take blocks of 16 as they finish,
+/// each with its own scratch), the results in the order of i.
+pub fn parallel_map<S: Default, T: Send>(
+    count: usize,
+    f: impl Fn(&mut S, usize) -> T + Sync,
+) -> Vec<T> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    const BLOCK: usize = 16;
+    let next = AtomicUsize::new(0);
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let work = || {
+        let mut scratch = S::default();
+        let mut done = Vec::new();
+        loop {
+            let start = next.fetch_add(BLOCK, Ordering::Relaxed);
+            if start >= count {
+                return done;
+            }
+            for i in start..(start + BLOCK).min(count) {
+                done.push((i, f(&mut scratch, i)));
+            }
+        }
+    };
+    let mut all: Vec<(usize, T)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (1..threads.min(count.div_ceil(BLOCK)))
+            .map(|_| s.spawn(work))
+            .collect();
+        let mut all = work();
+        for h in handles {
+            all.extend(h.join().expect("a worker thread panicked"));
+        }
+        all
+    });
+    all.sort_unstable_by_key(|(i, _)| *i);
+    all.into_iter().map(|(_, t)| t).collect()
+}
