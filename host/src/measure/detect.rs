@@ -207,8 +207,40 @@ pub enum Rejection {
     Border,
     /// Not an ellipse: fill or axis ratio out of range (merged blobs, lines, clutter).
     Shape,
-    /// The sub-pixel fit failed or left residuals far above the noise.
+    /// The sub-pixel fit did not converge to an ellipse inside the blob's box.
     Fit,
+    /// The fit's residuals are far above the noise and the image's other fits.
+    Residual,
+    /// The template and gravity centres disagree: not one symmetric ellipse (a dot merged
+    /// into a target, a partly covered target).
+    Shift,
+}
+
+impl Rejection {
+    /// Every reason, in the order of the tests.
+    pub const ALL: [Rejection; 7] = [
+        Rejection::TooSmall,
+        Rejection::TooLarge,
+        Rejection::Border,
+        Rejection::Shape,
+        Rejection::Fit,
+        Rejection::Residual,
+        Rejection::Shift,
+    ];
+
+    /// A short name for counts ("small", "large", "border", "shape", "fit", "residual",
+    /// "shift").
+    pub fn name(self) -> &'static str {
+        match self {
+            Rejection::TooSmall => "small",
+            Rejection::TooLarge => "large",
+            Rejection::Border => "border",
+            Rejection::Shape => "shape",
+            Rejection::Fit => "fit",
+            Rejection::Residual => "residual",
+            Rejection::Shift => "shift",
+        }
+    }
 }
 
 impl std::fmt::Display for Rejection {
@@ -218,7 +250,9 @@ impl std::fmt::Display for Rejection {
             Rejection::TooLarge => "larger than the maximum area",
             Rejection::Border => "touches the image border",
             Rejection::Shape => "not elliptical (merged blobs or clutter)",
-            Rejection::Fit => "the sub-pixel fit failed or fits badly",
+            Rejection::Fit => "the sub-pixel fit failed",
+            Rejection::Residual => "the fit leaves residuals far above the noise",
+            Rejection::Shift => "the template and gravity centres disagree",
         })
     }
 }
@@ -327,15 +361,28 @@ pub fn components<P: Copy + Into<f64>>(
     background: &BackgroundField,
     threshold: f64,
 ) -> Vec<Blob> {
+    let all = [0, 0, img.width - 1, img.height - 1];
+    components_in(img, polarity, background, threshold, all)
+}
+
+/// [`components`] within a window `[c0, r0, c1, r1]` (inclusive).
+pub fn components_in<P: Copy + Into<f64>>(
+    img: &GrayView<P>,
+    polarity: Polarity,
+    background: &BackgroundField,
+    threshold: f64,
+    window: [usize; 4],
+) -> Vec<Blob> {
+    let [c0, r0, c1, r1] = window;
     let mut parent: Vec<usize> = Vec::new();
     let mut sums: Vec<Sums> = Vec::new();
     let mut prev: Vec<(usize, usize, usize)> = Vec::new();
     let mut cur: Vec<(usize, usize, usize)> = Vec::new();
     let mut weights = vec![0.0; img.width];
-    for r in 0..img.height {
+    for r in r0..=r1 {
         cur.clear();
-        let mut c = 0;
-        while c < img.width {
+        let mut c = c0;
+        while c <= c1 {
             let w = img.signed(c, r, polarity) - background.at(c as f64, r as f64);
             if w <= threshold {
                 c += 1;
@@ -344,7 +391,7 @@ pub fn components<P: Copy + Into<f64>>(
             let start = c;
             weights[c] = w;
             c += 1;
-            while c < img.width {
+            while c <= c1 {
                 let w = img.signed(c, r, polarity) - background.at(c as f64, r as f64);
                 if w <= threshold {
                     break;

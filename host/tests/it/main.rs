@@ -12,4 +12,5 @@ mod link_in_process;
 mod measure;
 mod measure_cli;
 mod projector_cli;
+mod real_images;
 mod simulate_images;
