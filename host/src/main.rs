@@ -363,6 +363,9 @@ enum CalibrateWhat {
         /// With --board: the circles are brighter than the board.
         #[arg(long, requires = "board")]
         bright: bool,
+        /// Keep every observation (no data snooping).
+        #[arg(long)]
+        no_snooping: bool,
         /// Target observations CSV.
         #[arg(long, required_unless_present = "images")]
         obs: Option<PathBuf>,
@@ -583,6 +586,7 @@ fn main() -> anyhow::Result<()> {
                     pixel_size,
                     board_sigma,
                     bright,
+                    no_snooping,
                     obs,
                     folder,
                     control,
@@ -598,6 +602,7 @@ fn main() -> anyhow::Result<()> {
             let mut options = bundle::CalibrationOptions {
                 free_network,
                 image_sigma_px,
+                snooping: !no_snooping,
                 ..Default::default()
             };
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
