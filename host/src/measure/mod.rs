@@ -224,16 +224,16 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
 
 /// Split the components that fail the shape tests at a higher threshold, half their peak
 /// contrast: a target touching a fainter blob (a stain, a faint spot, a neighbour's halo) comes
-/// apart from it. The parts that pass the shape tests replace the component (the others stay
-/// as it was, to be rejected). Returns each blob's threshold (the split ones' own).
+/// apart from it. When exactly one part passes the shape tests it replaces the component (the
+/// others stay as they were, to be rejected). Returns each blob's threshold (the split ones'
+/// own).
 fn split_merged<P: Copy + Into<f64>>(
     mask: &LocalMask<'_, P>,
     d: &DetectParams,
-    blobs: &mut Vec<Blob>,
+    blobs: &mut [Blob],
 ) -> Vec<f64> {
     let (img, threshold) = (mask.img, mask.threshold);
     let mut thresholds = vec![threshold; blobs.len()];
-    let mut added = Vec::new();
     for k in 0..blobs.len() {
         let blob = blobs[k];
         if check_shape(&blob, d, img.width, img.height) != Some(Rejection::Shape) {
@@ -251,15 +251,12 @@ fn split_merged<P: Copy + Into<f64>>(
                     && check_shape(p, d, img.width, img.height).is_none()
             })
             .collect();
-        if let Some((first, rest)) = parts.split_first() {
-            blobs[k] = *first;
+        // One part only: a target and a fainter blob. Two targets merged stay rejected (their
+        // parts, cut at a higher threshold, would look smaller than the other targets).
+        if let [part] = parts[..] {
+            blobs[k] = part;
             thresholds[k] = higher;
-            added.extend(rest.iter().map(|p| (*p, higher)));
         }
-    }
-    for (b, t) in added {
-        blobs.push(b);
-        thresholds.push(t);
     }
     thresholds
 }
