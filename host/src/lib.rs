@@ -3,6 +3,7 @@
 #![deny(missing_docs)]
 
 pub mod accuracy;
+pub mod board_calibration;
 pub mod camera_calibration;
 pub mod cli;
 pub mod demo;

@@ -118,6 +118,11 @@ enum Command {
         /// Use the paper's gravity centre instead of the (more precise) template fit.
         #[arg(long)]
         gravity: bool,
+        /// Find a circle-grid board, `circles:COLSxROWS[:SPACING_MM]` or
+        /// `acircles:COLSxROWS[:SPACING_MM]` (OpenCV's pattern size): its circles are written
+        /// as points `rIcJ` (row I, column J), the other targets left out.
+        #[arg(long, conflicts_with = "system")]
+        board: Option<measure::board::Board>,
         /// Identify the projected dots with this calibrated system.json: identified dots are
         /// written as `dot` rows (point = ray id), every other dot is reported.
         #[arg(long, requires_all = ["near", "far"])]
@@ -487,9 +492,31 @@ enum CalibrateWhat {
     },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
     Camera {
-        /// The starting sensor: camera_init.json (pixel mapping, approximate f).
+        /// The starting sensor: camera_init.json (pixel mapping, approximate f); not with
+        /// --board.
+        #[arg(long, required_unless_present = "board")]
+        init: Option<PathBuf>,
+        /// Calibrate from views of a flat circle-grid board in --images instead,
+        /// `circles:COLSxROWS[:SPACING_MM]` or `acircles:COLSxROWS[:SPACING_MM]` (dark circles;
+        /// see `--bright`): the start from the views' homographies, the board as weighted
+        /// control; the labelled circles and the board are written next to --out
+        /// (*.obs.csv, *.control.csv).
+        #[arg(long, requires = "images", conflicts_with_all = ["init", "obs", "control"])]
+        board: Option<measure::board::Board>,
+        /// With --board: the pixel size (mm); without it photo coordinates are in units of 100
+        /// pixels (f and σ in pixels are printed all the same).
+        #[arg(long, default_value_t = 0.01, requires = "board")]
+        pixel_size: f64,
+        /// With --board: σ of the board's circle positions (its flatness and spacing errors,
+        /// in the spacing's unit).
+        #[arg(long, default_value_t = 0.02, requires = "board")]
+        board_sigma: f64,
+        /// With --board: the circles are brighter than the board.
+        #[arg(long, requires = "board")]
+        bright: bool,
+        /// Keep every observation (no data snooping).
         #[arg(long)]
-        init: PathBuf,
+        no_snooping: bool,
         /// Target observations CSV.
         #[arg(long, required_unless_present = "images")]
         obs: Option<PathBuf>,
@@ -717,6 +744,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             out,
             dark,
             gravity,
+            board,
             system,
             near,
             far,
@@ -729,6 +757,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             if gravity {
                 params.method = measure::CentreMethod::Gravity;
             }
+            params.board = board;
             let identifier = match (system, near, far) {
                 (Some(path), Some(near), Some(far)) => {
                     let (_, rig) = deltaz_host::system::SystemFile::load(&path)?;
@@ -742,6 +771,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 _ => None,
             };
             let measured = measure::measure_images(&images, &params, identifier.as_deref())?;
+            if measured.failed.len() == images.len() {
+                anyhow::bail!("{}", measured.failed.join("\n"));
+            }
             io::observations::write_observations(&out, &measured.observations)?;
             for line in &measured.unidentified {
                 println!("{line}");
@@ -749,10 +781,20 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!(
                 "{} observations in {} images ({} dots not identified) -> {}",
                 measured.observations.len(),
-                images.len(),
+                images.len() - measured.failed.len(),
                 measured.unidentified.len(),
                 out.display()
             );
+            for line in &measured.failed {
+                eprintln!("{line}");
+            }
+            if !measured.failed.is_empty() {
+                anyhow::bail!(
+                    "{} of {} images not measured (see above)",
+                    measured.failed.len(),
+                    images.len()
+                );
+            }
         }
         Command::Calibrate {
             what:
@@ -811,6 +853,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             what:
                 CalibrateWhat::Camera {
                     init,
+                    board,
+                    pixel_size,
+                    board_sigma,
+                    bright,
+                    no_snooping,
                     obs,
                     folder,
                     control,
@@ -828,11 +875,42 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let mut options = bundle::CalibrationOptions {
                 free_network,
                 image_sigma_px,
+                snooping: !no_snooping,
                 ..Default::default()
             };
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
                 options.free.inner[k] |= on;
             }
+            if let (Some(board), Some(dir)) = (board, folder.images.as_deref()) {
+                let mut params = measure::MeasureParams::default();
+                if !bright {
+                    params.detect.polarity = measure::detect::Polarity::Dark;
+                }
+                let cal = deltaz_host::board_calibration::calibrate_board(
+                    dir,
+                    &board,
+                    &params,
+                    pixel_size,
+                    board_sigma,
+                    &options,
+                )?;
+                for line in &cal.failed {
+                    eprintln!("left out: {line}");
+                }
+                let side = |ext: &str| out.with_extension(ext);
+                io::observations::write_observations(&side("obs.csv"), &cal.observations)?;
+                io::control::write_control(&side("control.csv"), &cal.control)?;
+                io::camera_file::write_camera(&out, &cal.file)?;
+                println!(
+                    "start from the homographies: f = {:.1} px; adjusted: f = {:.2} ± {:.2} px",
+                    cal.start_f_px,
+                    cal.file.inner.f / pixel_size,
+                    cal.file.sigma.f / pixel_size
+                );
+                print!("{}", cli::camera_summary(&cal.file, &options.free.inner));
+                return Ok(());
+            }
+            let init = init.expect("clap requires --init without --board");
             let folder = control.as_deref().and_then(|c| folder.with_control(c));
             let leftover = ObservationsGuard::new(&out);
             let obs = match (obs, folder) {

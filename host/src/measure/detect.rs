@@ -147,9 +147,10 @@ struct RowInterpolation<'a> {
 }
 
 impl<'a> RowInterpolation<'a> {
-    fn new(field: &'a BackgroundField, width: usize) -> Self {
+    /// For the columns `columns` (`row` then fills one value per column, from the first).
+    fn new(field: &'a BackgroundField, columns: std::ops::RangeInclusive<usize>) -> Self {
         let t = field.tile as f64;
-        let columns = (0..width)
+        let columns = columns
             .map(|c| {
                 let fx = ((c as f64 + 0.5) / t - 0.5).clamp(0.0, (field.nx - 1) as f64);
                 let x0 = fx.floor() as usize;
@@ -247,8 +248,40 @@ pub enum Rejection {
     Border,
     /// Not an ellipse: fill or axis ratio out of range (merged blobs, lines, clutter).
     Shape,
-    /// The sub-pixel fit failed or left residuals far above the noise.
+    /// The sub-pixel fit did not converge to an ellipse inside the blob's box.
     Fit,
+    /// The fit's residuals are far above the noise and the image's other fits.
+    Residual,
+    /// The template and gravity centres disagree: not one symmetric ellipse (a dot merged
+    /// into a target, a partly covered target).
+    Shift,
+}
+
+impl Rejection {
+    /// Every reason, in the order of the tests.
+    pub const ALL: [Rejection; 7] = [
+        Rejection::TooSmall,
+        Rejection::TooLarge,
+        Rejection::Border,
+        Rejection::Shape,
+        Rejection::Fit,
+        Rejection::Residual,
+        Rejection::Shift,
+    ];
+
+    /// A short name for counts ("small", "large", "border", "shape", "fit", "residual",
+    /// "shift").
+    pub fn name(self) -> &'static str {
+        match self {
+            Rejection::TooSmall => "small",
+            Rejection::TooLarge => "large",
+            Rejection::Border => "border",
+            Rejection::Shape => "shape",
+            Rejection::Fit => "fit",
+            Rejection::Residual => "residual",
+            Rejection::Shift => "shift",
+        }
+    }
 }
 
 impl std::fmt::Display for Rejection {
@@ -258,7 +291,9 @@ impl std::fmt::Display for Rejection {
             Rejection::TooLarge => "larger than the maximum area",
             Rejection::Border => "touches the image border",
             Rejection::Shape => "not elliptical (merged blobs or clutter)",
-            Rejection::Fit => "the sub-pixel fit failed or fits badly",
+            Rejection::Fit => "the sub-pixel fit failed",
+            Rejection::Residual => "the fit leaves residuals far above the noise",
+            Rejection::Shift => "the template and gravity centres disagree",
         })
     }
 }
@@ -367,19 +402,32 @@ pub fn components<P: Copy + Into<f64>>(
     background: &BackgroundField,
     threshold: f64,
 ) -> Vec<Blob> {
+    let all = [0, 0, img.width - 1, img.height - 1];
+    components_in(img, polarity, background, threshold, all)
+}
+
+/// [`components`] within a window `[c0, r0, c1, r1]` (inclusive).
+pub fn components_in<P: Copy + Into<f64>>(
+    img: &GrayView<P>,
+    polarity: Polarity,
+    background: &BackgroundField,
+    threshold: f64,
+    window: [usize; 4],
+) -> Vec<Blob> {
+    let [c0, r0, c1, r1] = window;
     let mut parent: Vec<usize> = Vec::new();
     let mut sums: Vec<Sums> = Vec::new();
     let mut prev: Vec<(usize, usize, usize)> = Vec::new();
     let mut cur: Vec<(usize, usize, usize)> = Vec::new();
     let mut weights = vec![0.0; img.width];
-    let mut rows = RowInterpolation::new(background, img.width);
-    let mut level = vec![0.0; img.width];
-    for r in 0..img.height {
+    let mut rows = RowInterpolation::new(background, c0..=c1);
+    let mut level = vec![0.0; c1 + 1 - c0];
+    for r in r0..=r1 {
         cur.clear();
         rows.row(r, &mut level);
-        let mut c = 0;
-        while c < img.width {
-            let w = img.signed(c, r, polarity) - level[c];
+        let mut c = c0;
+        while c <= c1 {
+            let w = img.signed(c, r, polarity) - level[c - c0];
             if w <= threshold {
                 c += 1;
                 continue;
@@ -387,8 +435,8 @@ pub fn components<P: Copy + Into<f64>>(
             let start = c;
             weights[c] = w;
             c += 1;
-            while c < img.width {
-                let w = img.signed(c, r, polarity) - level[c];
+            while c <= c1 {
+                let w = img.signed(c, r, polarity) - level[c - c0];
                 if w <= threshold {
                     break;
                 }

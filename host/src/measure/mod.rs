@@ -20,6 +20,7 @@
 //! and carry a shift of the same kind; it is not corrected either.
 
 pub mod bench;
+pub mod board;
 pub mod detect;
 pub mod fit;
 pub mod grid;
@@ -31,7 +32,8 @@ use crate::io::observations::{Observation, PointKind};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::identify::{Assignment, Identifier};
 use detect::{
-    check_shape, components, noise_sigma, BackgroundField, Blob, DetectParams, GrayView, Rejection,
+    check_shape, components, components_in, noise_sigma, BackgroundField, Blob, DetectParams,
+    GrayView, Rejection,
 };
 use nalgebra::{Matrix3, Vector2, Vector3};
 use std::path::Path;
@@ -64,6 +66,9 @@ pub struct MeasureParams {
     /// one symmetric ellipse (a dot merged into a target, a partly covered target) moves its
     /// gravity centre away from the fitted ellipse's centre.
     pub max_centre_shift: f64,
+    /// A circle-grid board to find in every image: its circles are named by grid position
+    /// (`rIcJ`, see [`board`]) and the other targets left out.
+    pub board: Option<board::Board>,
     /// The calibration's sensor (width, height in pixels), when measuring for a calibrated
     /// system: an image of another size is an error.
     pub sensor: Option<(u32, u32)>,
@@ -78,6 +83,7 @@ impl Default for MeasureParams {
             max_rms_sigma: 3.0,
             max_rms_fraction: 0.015,
             max_centre_shift: 0.25,
+            board: None,
             sensor: None,
         }
     }
@@ -108,89 +114,82 @@ pub struct Measurement {
 }
 
 /// Detect and measure all targets of an image.
+///
+/// The steps, each following from the image rather than from fixed pixel sizes:
+/// 1. the noise σ and the threshold (k σ, at least `min_contrast`);
+/// 2. components on a tiled background; when the targets are large against the tiles (a tile
+///    mostly covered by a target has a biased median), again on tiles of
+///    [`TILE_PER_DIAMETER`] typical target diameters ([`scale_aware_tile`]);
+/// 3. shape tests, then the template fit on the window around each blob, leaving out the
+///    pixels of *other* components (and 2 pixels around them) but nothing else: a large blob
+///    around the targets (a dark room, a frame) does not empty their windows;
+/// 4. the gates ([`gate_fits`]): residual and template-vs-gravity limits from the noise, the
+///    target's amplitude and size, and the spread of the image's own fits.
 pub fn measure<P: Copy + Into<f64> + Sync>(
     img: &GrayView<P>,
     params: &MeasureParams,
 ) -> Measurement {
     let d = &params.detect;
-    let background = BackgroundField::estimate(img, d.polarity, d.tile);
     // Quantisation alone gives σ ≥ 1/√12 DN.
     let sigma = noise_sigma(img).max(0.29 * img.dn);
     let threshold = (d.k_sigma * sigma).max(d.min_contrast * img.dn);
-    let blobs = components(img, d.polarity, &background, threshold);
-    let grown: Vec<[usize; 4]> = blobs
-        .iter()
-        .map(|b| {
-            let g = 2;
-            [
-                b.bbox[0].saturating_sub(g),
-                b.bbox[1].saturating_sub(g),
-                b.bbox[2] + g,
-                b.bbox[3] + g,
-            ]
-        })
-        .collect();
-    // The grown boxes by their first row, to find a window's neighbours by binary search.
-    let mut by_top: Vec<usize> = (0..grown.len()).collect();
-    by_top.sort_unstable_by_key(|&j| grown[j][1]);
-    let tops: Vec<usize> = by_top.iter().map(|&j| grown[j][1]).collect();
-    let tallest = grown.iter().map(|g| g[3] - g[1]).max().unwrap_or(0);
-    // One blob's verdict: shape tests, then the centre.
-    let centre =
-        |scratch: &mut Scratch, i: usize| -> std::result::Result<Target, (Blob, Rejection)> {
-            let blob = &blobs[i];
-            if let Some(why) = check_shape(blob, d, img.width, img.height) {
-                return Err((*blob, why));
-            }
-            let (gc, gr) = blob.gravity;
-            if params.method == CentreMethod::Gravity {
-                return Ok(Target {
+    let mut background = BackgroundField::estimate(img, d.polarity, d.tile);
+    let mut blobs = components(img, d.polarity, &background, threshold);
+    if let Some(tile) = scale_aware_tile(&blobs, d, img.width, img.height) {
+        background = BackgroundField::estimate(img, d.polarity, tile);
+        blobs = components(img, d.polarity, &background, threshold);
+    }
+    let local = LocalMask {
+        img,
+        polarity: d.polarity,
+        background: &background,
+        threshold,
+    };
+    let split = split_merged(&local, d, &mut blobs);
+    // One blob's verdict: shape tests, then the centre (ungated).
+    let centre = |scratch: &mut fit::Scratch,
+                  i: usize|
+     -> std::result::Result<Candidate, (Blob, Rejection)> {
+        let blob = &blobs[i];
+        if let Some(why) = check_shape(blob, d, img.width, img.height) {
+            return Err((*blob, why));
+        }
+        let (gc, gr) = blob.gravity;
+        if params.method == CentreMethod::Gravity {
+            return Ok(Candidate {
+                target: Target {
                     col: gc,
                     row: gr,
                     blob: *blob,
                     fit: None,
-                });
-            }
-            let m = params.margin;
-            let window = [
-                blob.bbox[0].saturating_sub(m),
-                blob.bbox[1].saturating_sub(m),
-                blob.bbox[2] + m,
-                blob.bbox[3] + m,
-            ];
-            let first = tops.partition_point(|&t| t + tallest < window[1]);
-            let last = tops.partition_point(|&t| t <= window[3]);
-            scratch.exclude.clear();
-            scratch.exclude.extend(
-                by_top[first..last]
-                    .iter()
-                    .filter(|&&j| {
-                        let g = &grown[j];
-                        j != i
-                            && g[0] <= window[2]
-                            && g[2] >= window[0]
-                            && g[1] <= window[3]
-                            && g[3] >= window[1]
-                    })
-                    .map(|&j| grown[j]),
-            );
-            let background = background.at(gc, gr);
-            let Scratch { exclude, fit } = scratch;
-            fit::fit_template(img, d.polarity, blob, background, m, exclude, fit)
-                .filter(|f| {
-                    let allowed = params.max_rms_sigma * sigma.max(img.dn)
-                        + params.max_rms_fraction * f.amplitude;
-                    let moved = (f.col - gc).hypot(f.row - gr);
-                    f.rms <= allowed && moved <= params.max_centre_shift
-                })
-                .map(|f| Target {
-                    col: f.col,
-                    row: f.row,
-                    blob: *blob,
-                    fit: Some(f),
-                })
-                .ok_or((*blob, Rejection::Fit))
+                },
+                check: None,
+            });
+        }
+        let local = LocalMask {
+            threshold: split[i],
+            ..local
         };
+        let exclude = local.foreign_runs(blob, params.margin + CHECK_MARGIN);
+        let f = fit::fit_template(
+            img,
+            d.polarity,
+            blob,
+            background.at(gc, gr),
+            params.margin,
+            &exclude,
+            scratch,
+        )
+        .ok_or((*blob, Rejection::Fit))?;
+        let target = Target {
+            col: f.col,
+            row: f.row,
+            blob: *blob,
+            fit: Some(f),
+        };
+        let check = symmetric_gravity(img, d.polarity, &f, blob, params.margin, &exclude);
+        Ok(Candidate { target, check })
+    };
     // The blobs are independent: spread them over the cores, keep their order.
     let verdicts = crate::parallel::parallel_map(blobs.len(), centre);
     let mut targets = Vec::new();
@@ -201,6 +200,9 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
             Err(r) => rejected.push(r),
         }
     }
+    let (targets, gated) = gate_fits(targets, sigma.max(img.dn), params);
+
+    rejected.extend(gated);
     Measurement {
         targets,
         rejected,
@@ -208,11 +210,322 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
     }
 }
 
-/// A measuring thread's reused buffers: the neighbours' boxes and the fit's window.
-#[derive(Default)]
-struct Scratch {
-    exclude: Vec<[usize; 4]>,
-    fit: fit::Scratch,
+/// Split the components that fail the shape tests at a higher threshold, half their peak
+/// contrast: a target touching a fainter blob (a stain, a faint spot, a neighbour's halo) comes
+/// apart from it. When exactly one part passes the shape tests it replaces the component (the
+/// others stay as they were, to be rejected). Returns each blob's threshold (the split ones'
+/// own).
+fn split_merged<P: Copy + Into<f64>>(
+    mask: &LocalMask<'_, P>,
+    d: &DetectParams,
+    blobs: &mut [Blob],
+) -> Vec<f64> {
+    let (img, threshold) = (mask.img, mask.threshold);
+    let mut thresholds = vec![threshold; blobs.len()];
+    for k in 0..blobs.len() {
+        let blob = blobs[k];
+        if check_shape(&blob, d, img.width, img.height) != Some(Rejection::Shape) {
+            continue;
+        }
+        let higher = (0.5 * blob.peak).max(threshold);
+        // Parts of this component only, not of others reaching into its box.
+        let (label, own, [c0, r0, w, _]) = mask.labels(&blob, 0);
+        let parts: Vec<Blob> = components_in(img, d.polarity, mask.background, higher, blob.bbox)
+            .into_iter()
+            .filter(|p| {
+                let (c, r) = (p.gravity.0.round() as usize, p.gravity.1.round() as usize);
+                own != 0
+                    && label[(r - r0) * w + (c - c0)] == own
+                    && check_shape(p, d, img.width, img.height).is_none()
+            })
+            .collect();
+        // One part only: a target and a fainter blob. Two targets merged stay rejected (their
+        // parts, cut at a higher threshold, would look smaller than the other targets).
+        if let [part] = parts[..] {
+            blobs[k] = part;
+            thresholds[k] = higher;
+        }
+    }
+    thresholds
+}
+
+/// Background tiles per typical target diameter when the targets are large.
+pub const TILE_PER_DIAMETER: f64 = 4.0;
+
+/// A larger background tile when the targets are large against `params.tile`: the 90th
+/// percentile of the equivalent diameters of the blobs that pass the shape tests, times
+/// [`TILE_PER_DIAMETER`]; `None` when that is not more than twice `params.tile` (a target
+/// covers less than a fifth of such a tile: its median is the background) or with too few blobs.
+pub fn scale_aware_tile(
+    blobs: &[Blob],
+    params: &DetectParams,
+    width: usize,
+    height: usize,
+) -> Option<usize> {
+    let mut diameters: Vec<f64> = blobs
+        .iter()
+        .filter(|b| check_shape(b, params, width, height).is_none())
+        .map(|b| 2.0 * (b.area as f64 / std::f64::consts::PI).sqrt())
+        .collect();
+    if diameters.len() < 3 {
+        return None;
+    }
+    let k = ((diameters.len() * 9) / 10).min(diameters.len() - 1);
+    let d90 = *diameters.select_nth_unstable_by(k, f64::total_cmp).1;
+    let tile = (TILE_PER_DIAMETER * d90).ceil() as usize;
+    (tile > 2 * params.tile).then_some(tile.min(width.max(height)))
+}
+
+/// The threshold mask around a blob, to find the pixels of other components in its window.
+struct LocalMask<'a, P> {
+    img: &'a GrayView<'a, P>,
+    polarity: detect::Polarity,
+    background: &'a BackgroundField,
+    threshold: f64,
+}
+
+impl<P: Copy + Into<f64>> LocalMask<'_, P> {
+    /// The components (8-connected) of the threshold mask in the blob's box grown by `pad`:
+    /// a label per pixel (0 below the threshold), the label of the blob's own component (the
+    /// one with its box and area; 0 if none) and the mask's [c0, r0, width, height].
+    fn labels(&self, blob: &Blob, pad: usize) -> (Vec<u32>, u32, [usize; 4]) {
+        let img = self.img;
+        let c0 = blob.bbox[0].saturating_sub(pad);
+        let r0 = blob.bbox[1].saturating_sub(pad);
+        let c1 = (blob.bbox[2] + pad).min(img.width - 1);
+        let r1 = (blob.bbox[3] + pad).min(img.height - 1);
+        let (w, h) = (c1 - c0 + 1, r1 - r0 + 1);
+        let mut label = vec![0u32; w * h];
+        for r in 0..h {
+            for c in 0..w {
+                let (cc, rr) = (c0 + c, r0 + r);
+                let v =
+                    img.signed(cc, rr, self.polarity) - self.background.at(cc as f64, rr as f64);
+                if v > self.threshold {
+                    label[r * w + c] = u32::MAX;
+                }
+            }
+        }
+        let mut own = 0;
+        let mut next = 0;
+        let mut stack = Vec::new();
+        for start in 0..w * h {
+            if label[start] != u32::MAX {
+                continue;
+            }
+            next += 1;
+            label[start] = next;
+            stack.push(start);
+            let (mut n, mut bbox) = (0usize, [usize::MAX, usize::MAX, 0, 0]);
+            while let Some(k) = stack.pop() {
+                let (r, c) = (k / w, k % w);
+                n += 1;
+                bbox = [
+                    bbox[0].min(c),
+                    bbox[1].min(r),
+                    bbox[2].max(c),
+                    bbox[3].max(r),
+                ];
+                for rr in r.saturating_sub(1)..=(r + 1).min(h - 1) {
+                    for cc in c.saturating_sub(1)..=(c + 1).min(w - 1) {
+                        let j = rr * w + cc;
+                        if label[j] == u32::MAX {
+                            label[j] = next;
+                            stack.push(j);
+                        }
+                    }
+                }
+            }
+            let global = [bbox[0] + c0, bbox[1] + r0, bbox[2] + c0, bbox[3] + r0];
+            if n == blob.area && global == blob.bbox {
+                own = next;
+            }
+        }
+        (label, own, [c0, r0, w, h])
+    }
+
+    /// The pixels of the fit window (the blob's box grown by `margin`) that belong to other
+    /// components, grown by 2 pixels (their blur), as row runs `[c0, r, c1, r]`. The blob's own
+    /// component is the window's component with its box and area; everything else above the
+    /// threshold is foreign.
+    fn foreign_runs(&self, blob: &Blob, margin: usize) -> Vec<[usize; 4]> {
+        const GROW: usize = 2;
+        // The mask covers the window plus GROW so that foreign pixels just outside still grow in.
+        let (label, own, [c0, r0, w, h]) = self.labels(blob, margin + GROW);
+        let foreign: Vec<bool> = label.iter().map(|&l| l != 0 && l != own).collect();
+        if !foreign.contains(&true) {
+            return Vec::new();
+        }
+        // Grow the foreign pixels by GROW (a square: along rows, then along columns).
+        let mut across = vec![false; w * h];
+        for r in 0..h {
+            for c in 0..w {
+                across[r * w + c] =
+                    (c.saturating_sub(GROW)..=(c + GROW).min(w - 1)).any(|cc| foreign[r * w + cc]);
+            }
+        }
+        let grown = |c: usize, r: usize| {
+            (r.saturating_sub(GROW)..=(r + GROW).min(h - 1)).any(|rr| across[rr * w + c])
+        };
+        // Row runs of the grown mask.
+        let mut runs = Vec::new();
+        for r in 0..h {
+            let mut start = None;
+            for c in 0..=w {
+                let hit = c < w && grown(c, r);
+                match (hit, start) {
+                    (true, None) => start = Some(c),
+                    (false, Some(s)) => {
+                        runs.push([c0 + s, r0 + r, c0 + c - 1, r0 + r]);
+                        start = None;
+                    }
+                    _ => {}
+                }
+            }
+        }
+        runs
+    }
+}
+
+/// Extra pixels around the fit window for the gravity check's background ring.
+const CHECK_MARGIN: usize = 3;
+
+/// A fitted target before the gates, with its gravity check.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    target: Target,
+    /// The gravity centre about the fitted ellipse ([`symmetric_gravity`]) and its σ (px).
+    check: Option<((f64, f64), f64)>,
+}
+
+/// The intensity-weighted centroid of a fitted target that is free of the threshold cut and of
+/// the tiled background: weights I − b over the pixels within the fitted ellipse grown by
+/// 2 edge widths + 1 px, with b a plane fitted to the pixels outside it (in the blob's box grown
+/// by `margin` + [`CHECK_MARGIN`], foreign pixels left out). For one symmetric ellipse it
+/// agrees with the template's centre within its noise; a dot merged into the target, a partly
+/// covered target or a fit gone astray move them apart. Returns the centre and its noise σ
+/// (σ of I − b times √Σ w² d² / Σ w, the plane's own noise neglected); `None` when there are
+/// too few background pixels.
+fn symmetric_gravity<P: Copy + Into<f64>>(
+    img: &GrayView<P>,
+    polarity: detect::Polarity,
+    f: &fit::EllipseFit,
+    blob: &Blob,
+    margin: usize,
+    exclude: &[[usize; 4]],
+) -> Option<((f64, f64), f64)> {
+    let m = margin + CHECK_MARGIN;
+    let c0 = blob.bbox[0].saturating_sub(m);
+    let r0 = blob.bbox[1].saturating_sub(m);
+    let c1 = (blob.bbox[2] + m).min(img.width - 1);
+    let r1 = (blob.bbox[3] + m).min(img.height - 1);
+    let grow = 2.0 * f.edge + 1.0;
+    let (sa, sb) = (f.semi_major + grow, f.semi_minor + grow);
+    let (ca, sn) = (f.angle.cos(), f.angle.sin());
+    let mut inside = Vec::new();
+    let mut plane = nalgebra::Matrix4::<f64>::zeros();
+    for r in r0..=r1 {
+        for c in c0..=c1 {
+            if exclude
+                .iter()
+                .any(|b| c >= b[0] && c <= b[2] && r >= b[1] && r <= b[3])
+            {
+                continue;
+            }
+            let (x, y) = (c as f64 - f.col, r as f64 - f.row);
+            let (u, v) = (ca * x + sn * y, -sn * x + ca * y);
+            let value = img.signed(c, r, polarity);
+            if (u / sa).powi(2) + (v / sb).powi(2) <= 1.0 {
+                inside.push((x, y, value));
+            } else {
+                let g = nalgebra::Vector4::new(1.0, x, y, value);
+                plane.syger(1.0, &g, &g, 1.0);
+            }
+        }
+    }
+    if plane[(0, 0)] < 12.0 {
+        return None;
+    }
+    let normal = plane.fixed_view::<3, 3>(0, 0).into_owned();
+    // `syger` fills the lower triangle only: the right-hand side is the last row.
+    let rhs = plane.fixed_view::<1, 3>(3, 0).transpose();
+    let b = normal.cholesky()?.solve(&rhs);
+    let n = plane[(0, 0)];
+    // The residual variance of the plane fit: the noise of one pixel.
+    let var = ((plane[(3, 3)] - b.dot(&rhs)) / (n - 3.0)).max(0.0);
+    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    for &(x, y, value) in &inside {
+        let w = value - (b[0] + b[1] * x + b[2] * y);
+        sw += w;
+        sx += w * x;
+        sy += w * y;
+    }
+    if sw <= 0.0 {
+        return None;
+    }
+    let (gx, gy) = (sx / sw, sy / sw);
+    let spread: f64 = inside
+        .iter()
+        .map(|&(x, y, _)| (x - gx).powi(2) + (y - gy).powi(2))
+        .sum();
+    Some(((f.col + gx, f.row + gy), (var * spread / 2.0).sqrt() / sw))
+}
+
+/// The fit gates, from the noise, each target's amplitude and size, and the spread of the
+/// image's own fits (so that JPEG halos and sharpening, which leave every fit a few DN of
+/// misfit, do not reject them all):
+/// - residual: RMS ≤ `max_rms_sigma` σ + `max_rms_fraction` A, or, if larger, ≤ A times the
+///   median of RMS / A over the image's fits plus 5 robust σ of it (its MAD · 1.4826);
+/// - template vs gravity: the distance between the template centre and the symmetric gravity
+///   centre ([`symmetric_gravity`]) ≤ `max_centre_shift` + 5 σ of that gravity centre + 10 %
+///   of the semi-major axis (the pixel sampling and the background plane's misfit bias the
+///   gravity centre in proportion to the target's size; a fit gone astray, a merged dot or a
+///   covered part move it by a good fraction of the radius).
+///
+/// Returns the accepted targets and the rejected ones (with the gate that failed).
+fn gate_fits(
+    candidates: Vec<Candidate>,
+    sigma: f64,
+    params: &MeasureParams,
+) -> (Vec<Target>, Vec<(Blob, Rejection)>) {
+    let mut relative: Vec<f64> = candidates
+        .iter()
+        .filter_map(|c| c.target.fit.map(|f| f.rms / f.amplitude))
+        .collect();
+    let spread_limit = if relative.len() >= 5 {
+        let mid = median(&mut relative);
+        let mut dev: Vec<f64> = relative.iter().map(|r| (r - mid).abs()).collect();
+        mid + 5.0 * 1.4826 * median(&mut dev)
+    } else {
+        0.0
+    };
+    let mut accepted = Vec::with_capacity(candidates.len());
+    let mut rejected = Vec::new();
+    for Candidate { target: t, check } in candidates {
+        let Some(f) = t.fit else {
+            accepted.push(t);
+            continue;
+        };
+        let allowed = (params.max_rms_sigma * sigma + params.max_rms_fraction * f.amplitude)
+            .max(spread_limit * f.amplitude);
+        // Without a background ring (crowded targets) the blob's own gravity centre stands in.
+        let ((gc, gr), gs) = check.unwrap_or((t.blob.gravity, 0.0));
+        let shifted = (f.col - gc).hypot(f.row - gr)
+            > params.max_centre_shift + 5.0 * gs + 0.1 * f.semi_major;
+        if f.rms > allowed {
+            rejected.push((t.blob, Rejection::Residual));
+        } else if shifted {
+            rejected.push((t.blob, Rejection::Shift));
+        } else {
+            accepted.push(t);
+        }
+    }
+    (accepted, rejected)
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// A decoded image: 8- and 16-bit grayscale are kept as decoded; colour is converted to 16-bit
@@ -265,11 +578,45 @@ pub fn load_image(path: &Path) -> Result<LoadedImage> {
     })
 }
 
-/// Read and measure one image file; an image without any accepted target, or of another size
-/// than [`MeasureParams::sensor`], is an error.
+impl Measurement {
+    /// The rejected components counted per reason: "12 small, 3 shape, 1 residual" (reasons
+    /// without rejections left out; "none" when nothing was rejected).
+    pub fn rejection_counts(&self) -> String {
+        let counts: Vec<String> = Rejection::ALL
+            .iter()
+            .filter_map(|&why| {
+                let n = self.rejected.iter().filter(|(_, r)| *r == why).count();
+                (n > 0).then(|| format!("{n} {}", why.name()))
+            })
+            .collect();
+        if counts.is_empty() {
+            "none".to_owned()
+        } else {
+            counts.join(", ")
+        }
+    }
+}
+
+fn measure_loaded(image: &LoadedImage, params: &MeasureParams) -> Measurement {
+    match image {
+        LoadedImage::Eight(b) => measure(&view(b, 1.0), params),
+        LoadedImage::Sixteen(b) => measure(&view(b, 257.0), params),
+    }
+}
+
+/// Read and measure one image file. An image without any accepted target is an error that
+/// gives the rejections per reason and, when the other polarity finds targets, says so.
 pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> {
-    let image = load_image(path)?;
-    let size = match &image {
+    measure_loaded_file(path, &load_image(path)?, params)
+}
+
+/// [`measure_file`] on an image already read.
+fn measure_loaded_file(
+    path: &Path,
+    image: &LoadedImage,
+    params: &MeasureParams,
+) -> Result<Measurement> {
+    let size = match image {
         LoadedImage::Eight(b) => b.dimensions(),
         LoadedImage::Sixteen(b) => b.dimensions(),
     };
@@ -283,15 +630,24 @@ pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> 
             sensor.1
         );
     }
-    let measured = match image {
-        LoadedImage::Eight(b) => measure(&view(&b, 1.0), params),
-        LoadedImage::Sixteen(b) => measure(&view(&b, 257.0), params),
-    };
+    let measured = measure_loaded(image, params);
     if measured.targets.is_empty() {
+        let mut other = *params;
+        other.detect.polarity = match params.detect.polarity {
+            detect::Polarity::Bright => detect::Polarity::Dark,
+            detect::Polarity::Dark => detect::Polarity::Bright,
+        };
+        let found = measure_loaded(image, &other).targets.len();
+        let hint = match (found, other.detect.polarity) {
+            (0, _) => String::new(),
+            (n, detect::Polarity::Dark) => format!("; {n} dark targets found with --dark"),
+            (n, detect::Polarity::Bright) => format!("; {n} bright targets found without --dark"),
+        };
         bail!(
-            "{}: no targets found ({} components rejected)",
+            "{}: no targets found ({} components rejected: {}){hint}",
             path.display(),
-            measured.rejected.len()
+            measured.rejected.len(),
+            measured.rejection_counts()
         );
     }
     Ok(measured)
@@ -331,11 +687,15 @@ pub struct MeasuredImages {
     pub observations: Vec<Observation>,
     /// "image mK (col, row): why" for each ambiguous, conflicting or unassigned dot.
     pub unidentified: Vec<String>,
+    /// One error per image without targets or board (the others are measured all the same).
+    pub failed: Vec<String>,
 }
 
 /// Measure image files into observations: image label = file stem, point label = `m` + the
 /// target's number in the image (1-based, in row-major order of the targets' boxes), or with an
-/// identifier the dot's ray id. Stops at the first image that cannot be read or has no targets.
+/// identifier the dot's ray id. An image without targets (or, with a board, without the board)
+/// is reported in `failed` and the others are measured; an image that cannot be read and two
+/// images with one label are errors.
 pub fn measure_images(
     paths: &[std::path::PathBuf],
     params: &MeasureParams,
@@ -352,7 +712,21 @@ pub fn measure_images(
         if !labels.insert(label.clone()) {
             bail!("{}: a second image labelled {label}", path.display());
         }
-        let measured = measure_file(path, params)?;
+        let image = load_image(path)?;
+        let measured = match measure_loaded_file(path, &image, params) {
+            Ok(m) => m,
+            Err(e) => {
+                out.failed.push(format!("{e:#}"));
+                continue;
+            }
+        };
+        if let Some(board) = params.board {
+            match board_observations(path, &label, &board, &measured) {
+                Ok(found) => out.observations.extend(found),
+                Err(e) => out.failed.push(format!("{e:#}")),
+            }
+            continue;
+        }
         let Some(identifier) = identifier else {
             for (k, t) in measured.targets.iter().enumerate() {
                 let name = format!("m{}", k + 1);
@@ -383,6 +757,37 @@ pub fn measure_images(
         }
     }
     Ok(out)
+}
+
+/// The circles of a board among an image's targets, as observations named `rIcJ`.
+fn board_observations(
+    path: &Path,
+    label: &str,
+    board: &board::Board,
+    measured: &Measurement,
+) -> Result<Vec<Observation>> {
+    let centres: Vec<Vector2<f64>> = measured
+        .targets
+        .iter()
+        .map(|t| Vector2::new(t.col, t.row))
+        .collect();
+    let radii: Vec<f64> = measured
+        .targets
+        .iter()
+        .map(|t| (t.blob.area as f64).sqrt())
+        .collect();
+    let (width, height) = image::image_dimensions(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let found = board
+        .find(&centres, &radii, width as usize, height as usize)
+        .with_context(|| path.display().to_string())?;
+    Ok(found
+        .iter()
+        .map(|p| {
+            let t = &measured.targets[p.target];
+            Observation::target(label, &board::Board::name(p.row, p.col), t.col, t.row)
+        })
+        .collect())
 }
 
 fn view<P: image::Primitive>(

@@ -17,6 +17,7 @@ mod measure;
 mod measure_cli;
 mod projector_cli;
 mod readme;
+mod real_images;
 mod residuals_cli;
 mod scan;
 mod simulate_images;

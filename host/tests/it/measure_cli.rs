@@ -77,3 +77,60 @@ fn simulate_images_then_measure() {
     );
     assert!(!none.exists(), "no partial output");
 }
+
+/// A batch with an image without targets: the others are measured and written, the bad one
+/// reported with its rejections per reason and a polarity hint, and the exit code says so.
+#[test]
+fn batch_goes_on_past_an_image_without_targets() {
+    use deltaz_host::measure::render::{Background, BitDepth, Scene, Spot};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = |level: f64, amplitude: f64| Scene {
+        width: 200,
+        height: 150,
+        spots: (1..=3)
+            .flat_map(|i| {
+                (1..=2).map(move |j| Spot::circle(50.0 * i as f64, 50.0 * j as f64, 6.0, amplitude))
+            })
+            .collect(),
+        background: Background {
+            level,
+            slope_col: 0.0,
+            slope_row: 0.0,
+            ripple: 0.0,
+            ripple_period: 100.0,
+        },
+        falloff: 0.0,
+        blur_sigma: 1.0,
+        noise_sigma: 2.0,
+        seed: 5,
+    };
+    let bright = dir.path().join("bright.png");
+    let dark = dir.path().join("dark.png");
+    scene(40.0, 150.0)
+        .render()
+        .save_png(&bright, BitDepth::Eight)
+        .unwrap();
+    scene(200.0, -150.0)
+        .render()
+        .save_png(&dark, BitDepth::Eight)
+        .unwrap();
+    let out = dir.path().join("obs.csv");
+    let run = deltaz(&[
+        "measure",
+        dark.to_str().unwrap(),
+        bright.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{err}");
+    assert!(
+        err.contains("dark.png: no targets found")
+            && err.contains("6 dark targets found with --dark")
+            && err.contains("1 of 2 images not measured"),
+        "{err}"
+    );
+    let rows = read_observations(&out).unwrap();
+    assert_eq!(rows.len(), 6);
+    assert!(rows.iter().all(|o| o.image == "bright"));
+}
