@@ -2,12 +2,12 @@
 //! [`deltaz_calib::bundle`], and the result as `camera.json`.
 
 use crate::io::camera_file::{
-    CameraFile, Correlation, InnerParams, PoseParams, Rejected, Station, CAMERA_FORMAT, INNER_NAMES,
+    CameraFile, Correlation, InnerParams, PoseParams, Rejected, Station, CAMERA_FORMAT,
 };
 use crate::io::control::ControlPoint;
 use crate::io::observations::{Observation, PointKind};
 use crate::io::FileError;
-use deltaz_calib::bundle::problem::{FreeParameters, Problem};
+use deltaz_calib::bundle::problem::Problem;
 use deltaz_calib::bundle::{BuildError, Calibration, CalibrationOptions};
 use deltaz_calib::input::Measurement;
 use deltaz_calib::residual::image_residual;
@@ -192,41 +192,12 @@ pub fn calibrate_files_with_residuals(
     Ok((file, residuals))
 }
 
-/// A short report of a calibration: the free inner parameters with σ, σ0, RMS, rejections.
-pub fn summary(file: &CameraFile, free: &FreeParameters) -> String {
-    let mut text = String::new();
-    let (values, sigma) = (file.inner.to_array(), file.sigma.to_array());
-    for (k, name) in INNER_NAMES
-        .iter()
-        .enumerate()
-        .filter(|(k, _)| free.inner[*k])
-    {
-        text.push_str(&format!(
-            "{name:>3} = {:>12.6e} ± {:.2e}\n",
-            values[k], sigma[k]
-        ));
-    }
-    text.push_str(&format!(
-        "σ0 = {:.4} mm, RMS {:.3} px, {} iterations, {} rejected, {} correlations > 0.9\n",
-        file.sigma0.unwrap_or(f64::NAN),
-        file.rms_px.unwrap_or(f64::NAN),
-        file.iterations.unwrap_or(0),
-        file.rejected.len(),
-        file.correlations.len()
-    ));
-    for r in &file.rejected {
-        text.push_str(&format!(
-            "rejected: image {} point {} ({:.1} px)\n",
-            r.image, r.point, r.residual_px
-        ));
-    }
-    text
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::camera_file::INNER_NAMES;
     use crate::simulate::{simulate, Scenario, Simulation};
+    use deltaz_calib::bundle::problem::FreeParameters;
     use deltaz_calib::residual::POSE;
     use nalgebra::Vector3;
 

@@ -692,8 +692,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let cam = io::camera_file::read_camera(&camera)?;
             let observations = io::observations::read_observations(&obs)?;
             let control = io::control::read_control(&control)?;
-            let results =
-                deltaz_host::plates::resect_images(&obs, &cam.grid(), &cam.inner(), &observations, &control)?;
+            let results = deltaz_host::plates::resect_images(
+                &obs,
+                &cam.grid(),
+                &cam.inner(),
+                &observations,
+                &control,
+            )?;
             let poses = deltaz_host::plates::PosesFile::new(&results);
             if let Some(out) = &out {
                 io::atomic::write_json_atomic(out, &poses)?;
@@ -929,13 +934,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let progress =
                 output.progress(format!("calibrating the camera from {}", obs.display()));
-            let (file, residuals) = deltaz_host::camera_calibration::calibrate_files_with_residuals(
-                &init,
-                &obs,
-                control.as_deref(),
-                &out,
-                &options,
-            )?;
+            let (file, residuals) =
+                deltaz_host::camera_calibration::calibrate_files_with_residuals(
+                    &init,
+                    &obs,
+                    control.as_deref(),
+                    &out,
+                    &options,
+                )?;
             progress.finish_and_clear();
             let pixel_size = file.pixel_size;
             output.status(format!(

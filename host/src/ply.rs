@@ -106,7 +106,12 @@ pub fn header(count: usize, layout: &Layout, info: &CloudInfo) -> String {
 }
 
 /// Appends one vertex of `layout` (σ only when the layout has it; `frame` when it has one).
-pub fn push_point(bytes: &mut Vec<u8>, p: &ReconstructedPoint, frame: Option<u32>, layout: &Layout) {
+pub fn push_point(
+    bytes: &mut Vec<u8>,
+    p: &ReconstructedPoint,
+    frame: Option<u32>,
+    layout: &Layout,
+) {
     let sigma = p.sigma.filter(|_| layout.sigma);
     let frame = frame.filter(|_| layout.frame);
     match layout.encoding {

@@ -218,7 +218,11 @@ impl Rows {
             }
             out.push(Row {
                 image: self.image.clone(),
-                frame: self.images.iter().position(|i| *i == self.image).unwrap_or(0) as u32,
+                frame: self
+                    .images
+                    .iter()
+                    .position(|i| *i == self.image)
+                    .unwrap_or(0) as u32,
                 dot,
                 line,
             });

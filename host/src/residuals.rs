@@ -6,8 +6,8 @@
 //! adjusted point projected through the adjusted camera (eqs 1-2). RMS figures are per
 //! coordinate, as deltaz reports them (OpenCV's per point is √2 larger).
 
-use deltaz_calib::bundle::Calibration;
 use crate::io::observations::Observation;
+use deltaz_calib::bundle::Calibration;
 use deltaz_shared::collinearity::project_camera_point;
 use std::borrow::Cow;
 use std::fmt::Write as _;
