@@ -194,7 +194,9 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
         };
         for (point, xyz) in &targets {
             if let Some(pixel) = visible(&camera, xyz) {
-                let ((col, row), gross) = noise.pixel(pixel, true);
+                let Some(((col, row), gross)) = on_sensor(&grid, noise.pixel(pixel, true)) else {
+                    continue;
+                };
                 if gross {
                     outliers.push(TruthOutlier {
                         image: image.clone(),
@@ -234,7 +236,9 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
         };
         for (point, xyz) in &plate_control_true {
             if let Some(pixel) = visible(&camera, xyz) {
-                let ((col, row), _) = noise.pixel(pixel, false);
+                let Some(((col, row), _)) = on_sensor(&grid, noise.pixel(pixel, false)) else {
+                    continue;
+                };
                 plate_obs.push(Observation::target(&image, point, col, row));
             }
         }
@@ -252,7 +256,9 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
                 continue;
             }
             if let Some(pixel) = visible(&camera, &hit) {
-                let ((col, row), _) = noise.pixel(pixel, false);
+                let Some(((col, row), _)) = on_sensor(&grid, noise.pixel(pixel, false)) else {
+                    continue;
+                };
                 let mut o = Observation::target(&image, &ray.id.to_string(), col, row);
                 o.kind = PointKind::Dot;
                 plate_obs.push(o);
@@ -308,6 +314,12 @@ pub fn simulate(scenario: &Scenario, seed: u64) -> Simulation {
 fn visible(camera: &Camera<f64>, world: &Vector3<f64>) -> Option<(f64, f64)> {
     let (col, row) = camera.world_to_pixel(world).ok()?;
     camera.grid.contains(col, row).then_some((col, row))
+}
+
+/// A noisy observation if it is still on the sensor (a camera sees nothing beyond its edge).
+fn on_sensor(grid: &PixelGrid<f64>, observed: ((f64, f64), bool)) -> Option<((f64, f64), bool)> {
+    let (col, row) = observed.0;
+    grid.contains(col, row).then_some(observed)
 }
 
 /// Writes a simulation's six files into `dir` (created if needed), each atomically.

@@ -274,7 +274,8 @@ fn reconstruct_streams_across_batches() {
     let head = b"element vertex 70000\n";
     assert!(ply.windows(head.len()).any(|w| w == head));
     let body = ply.len() - (ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11);
-    assert_eq!(body, total * (3 * 8 + 2 + 8));
+    // x y z, ray_id, miss, frame (the image's index).
+    assert_eq!(body, total * (3 * 8 + 2 + 8 + 4));
     let csv = std::fs::read_to_string(d.join("many.csv.out")).unwrap();
     let lines: Vec<&str> = csv.lines().skip(1).collect();
     assert_eq!(lines.len(), total);
