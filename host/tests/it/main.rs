@@ -11,6 +11,7 @@ mod link_errors;
 mod link_in_process;
 mod measure;
 mod measure_cli;
+mod objects;
 mod projector_cli;
 mod scan;
 mod simulate_images;
