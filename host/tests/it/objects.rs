@@ -174,3 +174,47 @@ fn torso_error_from_images() {
     let (rig, _, matched) = scanned("torso");
     error_at_floor("torso", &rig, &matched);
 }
+
+/// `simulate --images`' object files: the torso frames read back from `images/objects/` with
+/// their truth from `truth.csv` (one row per dot), scanned at the floor like those rendered in
+/// memory; `objects.json` names every frame.
+#[test]
+fn written_objects_read_back() {
+    let scenario = Scenario::paper();
+    let dir = tempfile::tempdir().unwrap();
+    let n = deltaz_host::simulate::objects::write_objects(&scenario, 5, dir.path()).unwrap();
+    assert_eq!(n, 9);
+    let out = dir.path().join("images/objects");
+    let truth = std::fs::read_to_string(out.join("truth.csv")).unwrap();
+    let objects: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("objects.json")).unwrap()).unwrap();
+    let frames: Vec<_> = (0..3)
+        .map(|k| {
+            let name = format!("torso_{k}");
+            assert_eq!(objects[&name]["kind"], "torso");
+            let dots = truth
+                .lines()
+                .skip(1)
+                .filter_map(|l| {
+                    let f: Vec<&str> = l.split(',').collect();
+                    let v = |i: usize| f[i].parse::<f64>().unwrap();
+                    (f[0] == name).then(|| {
+                        (
+                            f[1].parse().unwrap(),
+                            (v(2), v(3)),
+                            Vector3::new(v(4), v(5), v(6)),
+                        )
+                    })
+                })
+                .collect::<Vec<_>>();
+            let image = image::open(out.join(format!("{name}.png")))
+                .unwrap()
+                .to_luma8();
+            (image, dots)
+        })
+        .collect();
+    let rig = true_rig(&scenario);
+    let depth = plate_depth(&scenario);
+    let matched = scan_frames(&rig, &frames, (depth - 130.0, depth + 130.0), 0.7);
+    error_at_floor("torso from files", &rig, &matched);
+}
