@@ -9,12 +9,22 @@ use deltaz_host::simulate::{images::true_rig, Scenario};
 use deltaz_host::system::SystemRig;
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
-/// The paper rig's scans of the test objects whose names start with `kind`: the objects and
-/// their matched dots, frame by frame (identified over the plates' depth ± 130 mm).
-fn scanned(kind: &str) -> (SystemRig, Vec<Object>, Vec<Vec<Matched>>) {
-    let scenario = Scenario::paper();
-    let rig = true_rig(&scenario);
-    let depth = plate_depth(&scenario);
+/// The two geometries: the paper's, and a second with the plates (hence the objects) 300 mm
+/// nearer and the projector 60 mm further from the camera along X.
+fn geometries() -> [(&'static str, Scenario); 2] {
+    let mut second = Scenario::paper();
+    for pose in &mut second.plate.images {
+        pose.Z0 -= 300.0;
+    }
+    second.rig.projector_centre[0] += 60.0;
+    [("paper", Scenario::paper()), ("second", second)]
+}
+
+/// The scans by `scenario`'s true rig of the test objects whose names start with `kind`: the
+/// objects and their matched dots, frame by frame (identified over the plates' depth ± 130 mm).
+fn scanned(scenario: &Scenario, kind: &str) -> (SystemRig, Vec<Object>, Vec<Vec<Matched>>) {
+    let rig = true_rig(scenario);
+    let depth = plate_depth(scenario);
     let objects: Vec<Object> = test_objects(depth)
         .into_iter()
         .filter(|(name, _)| name.starts_with(kind))
@@ -85,12 +95,18 @@ fn form_ratio(name: &str, fits: &[(DVector<f64>, Vec<f64>)], p: usize) -> (f64, 
     (residual2.sqrt(), floor2.sqrt(), ratio)
 }
 
-/// A sphere of 300 mm radius in three frames: the fitted radius within 3 σ of the truth, σ
+/// A sphere of 300 mm radius in three frames, for each geometry: the fitted radius within 3 σ of the truth, σ
 /// propagated from the image noise through the fit, and the form error (the RMS distance of
 /// the points from the fitted sphere) at its floor.
 #[test]
 fn sphere_radius_and_form_from_images() {
-    let (rig, objects, matched) = scanned("sphere");
+    for (geometry, scenario) in geometries() {
+        sphere(geometry, &scenario);
+    }
+}
+
+fn sphere(geometry: &str, scenario: &Scenario) {
+    let (rig, objects, matched) = scanned(scenario, "sphere");
     let (_, covariances) = propagated(&rig, &matched);
     let mut fits = Vec::new();
     for ((object, frame), covariances) in objects.iter().zip(&matched).zip(&covariances) {
@@ -119,7 +135,7 @@ fn sphere_radius_and_form_from_images() {
         let sigma_r = (&jtj_inv * meat * &jtj_inv)[(3, 3)].sqrt();
         let error = x[3] - radius;
         println!(
-            "sphere: radius error {error:+.4} mm, σ {sigma_r:.4} mm ({:.2} σ), centre off by {:.3} mm",
+            "{geometry} sphere: radius error {error:+.4} mm, σ {sigma_r:.4} mm ({:.2} σ), centre off by {:.3} mm",
             error / sigma_r,
             (c - Vector3::from(centre)).norm()
         );
@@ -130,14 +146,20 @@ fn sphere_radius_and_form_from_images() {
         assert!(sigma_r < 0.05, "radius σ {sigma_r} mm");
         fits.push((r, v));
     }
-    form_ratio("sphere form error", &fits, 4);
+    form_ratio(&format!("{geometry} sphere form error"), &fits, 4);
 }
 
-/// A plane tilted 0.06-0.14 rad at the plates' depth ± 15 mm in three frames: its flatness
+/// A plane tilted 0.06-0.14 rad at the plates' depth ± 15 mm in three frames, for each geometry: its flatness
 /// (the RMS distance of the points from the fitted plane) at its floor.
 #[test]
 fn plane_flatness_from_images() {
-    let (rig, objects, matched) = scanned("plane");
+    for (geometry, scenario) in geometries() {
+        flatness(geometry, &scenario);
+    }
+}
+
+fn flatness(geometry: &str, scenario: &Scenario) {
+    let (rig, objects, matched) = scanned(scenario, "plane");
     let (_, covariances) = propagated(&rig, &matched);
     let mut fits = Vec::new();
     for ((object, frame), covariances) in objects.iter().zip(&matched).zip(&covariances) {
@@ -165,14 +187,16 @@ fn plane_flatness_from_images() {
         let v = normal_variances(covariances, &vec![normal; points.len()]);
         fits.push((r, v));
     }
-    form_ratio("plane flatness", &fits, 3);
+    form_ratio(&format!("{geometry} plane flatness"), &fits, 3);
 }
 
-/// The torso in three frames: the points' error against the true surface points at the floor.
+/// The torso in three frames, for each geometry: the points' error against the true surface points at the floor.
 #[test]
 fn torso_error_from_images() {
-    let (rig, _, matched) = scanned("torso");
-    error_at_floor("torso", &rig, &matched);
+    for (geometry, scenario) in geometries() {
+        let (rig, _, matched) = scanned(&scenario, "torso");
+        error_at_floor(&format!("{geometry} torso"), &rig, &matched);
+    }
 }
 
 /// `simulate --images`' object files: the torso frames read back from `images/objects/` with
