@@ -635,6 +635,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 };
                 let n = simulate::images::write_images(&scenario, seed, &spec, &out)?;
                 println!("{n} images -> {}", out.join("images").display());
+                let n = simulate::objects::write_objects(&scenario, seed, &out)?;
+                println!(
+                    "{n} test object frames -> {}",
+                    out.join("images/objects").display()
+                );
             }
             println!(
                 "{}: {} field observations in {} images, {} plate observations in {} images -> {}",

@@ -184,52 +184,10 @@ pub fn scan_files(
     scan(rig, identifier, params, method, files.len(), load, sink)
 }
 
-/// A dot on a plane: ray id, image position (col, row), true point (rig frame, mm).
-pub type PlaneDot = (u16, (f64, f64), nalgebra::Vector3<f64>);
-
-/// The image positions (col, row) of the rig's projected dots on the plane through the point
-/// `depth` mm in front of the camera, tilted by `tilt` rad about the camera's row axis, with
-/// their true points (rig frame) and ray ids; dots off the sensor are left out. For a rig whose
-/// camera axes are the frame's (the simulator's true rig).
-pub fn plane_dots(
-    rig: &SystemRig,
-    depth: f64,
-    tilt: f64,
-) -> Vec<(u16, (f64, f64), nalgebra::Vector3<f64>)> {
-    use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
-    use nalgebra::Vector3;
-    let camera = Camera {
-        grid: *rig.grid(),
-        inner: *rig.inner(),
-        exterior: ExteriorOrientation {
-            kappa: 0.0,
-            phi: 0.0,
-            omega: 0.0,
-            centre: Vector3::zeros(),
-        },
-    };
-    // The plane n·x = −depth, n = (sin t, 0, cos t), in the camera-centred frame.
-    let normal = Vector3::new(tilt.sin(), 0.0, tilt.cos());
-    let projector = rig.projector_centred();
-    let (w, h) = (f64::from(rig.grid().width), f64::from(rig.grid().height));
-    projector
-        .rays()
-        .iter()
-        .filter_map(|r| {
-            let start = projector.centre() + r.offset;
-            let t = (-depth - normal.dot(&start)) / normal.dot(&r.direction);
-            let x = start + r.direction * t;
-            let (col, row) = camera.world_to_pixel(&x).ok()?;
-            let inside = col > 10.0 && row > 10.0 && col < w - 11.0 && row < h - 11.0;
-            inside.then(|| (r.id, (col, row), x + rig.camera_centre()))
-        })
-        .collect()
-}
-
 /// Scan timings (`deltaz bench-measure`): 60 frames of the paper rig's dots rendered on planes
 /// 1690-1780 mm away, tilted up to 0.1 rad (768 × 512, radius 4 px, blur 1 px, noise 2 DN), scanned in process.
 pub fn bench() -> Result<String> {
-    use crate::measure::render::{Background, Scene, Spot};
+    use crate::simulate::objects::{object_dots, object_frame, Object};
     use crate::simulate::{images::true_rig, Scenario};
     let rig = true_rig(&Scenario::paper());
     let frames: Vec<_> = [
@@ -241,21 +199,8 @@ pub fn bench() -> Result<String> {
     .iter()
     .enumerate()
     .map(|(k, &(depth, tilt))| {
-        let spots = plane_dots(&rig, depth, tilt)
-            .iter()
-            .map(|(_, (c, r), _)| Spot::circle(*c, *r, 4.0, 150.0))
-            .collect();
-        let scene = Scene {
-            width: rig.grid().width as usize,
-            height: rig.grid().height as usize,
-            spots,
-            background: Background::flat(30.0),
-            falloff: 0.2,
-            blur_sigma: 1.0,
-            noise_sigma: 2.0,
-            seed: k as u64,
-        };
-        scene.render().to_u8()
+        let dots = object_dots(&rig, &Object::Plane { depth, tilt });
+        object_frame(&rig, &dots, k as u64)
     })
     .collect();
     let depth = deltaz_shared::identify::DepthRange {
@@ -366,10 +311,15 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
 /// Time the epipolar identification of the paper's 440 dots on a plane 1740 mm away: building
 /// the lookup (once per calibration) and identifying a frame.
 pub fn identification() -> String {
+    use crate::simulate::objects::{object_dots, Object};
     use crate::simulate::{images::true_rig, Scenario};
     use deltaz_shared::identify::{DepthRange, Identifier};
     let rig = true_rig(&Scenario::paper());
-    let dots: Vec<(f64, f64)> = plane_dots(&rig, 1740.0, 0.0).iter().map(|d| d.1).collect();
+    let plane = Object::Plane {
+        depth: 1740.0,
+        tilt: 0.0,
+    };
+    let dots: Vec<(f64, f64)> = object_dots(&rig, &plane).iter().map(|d| d.1).collect();
     let depth = DepthRange {
         near: 1680.0,
         far: 1800.0,

@@ -15,6 +15,7 @@ mod link_errors;
 mod link_in_process;
 mod measure;
 mod measure_cli;
+mod objects;
 mod projector_cli;
 mod readme;
 mod real_images;
