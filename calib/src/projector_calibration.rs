@@ -516,7 +516,7 @@ pub fn calibrate_projector(
             (paper_centre, paper_sigma, lines)
         }
         Model::Joint => {
-            let fit = joint;
+            let fit = joint.clone();
             let lines = fit
                 .slopes
                 .into_iter()
@@ -524,18 +524,25 @@ pub fn calibrate_projector(
                 .collect();
             (fit.centre, fit.centre_sigma, lines)
         }
-        Model::Noncentral => {
-            let lines = noncentral_lines(&by_ray, &joint.centre);
-            (joint.centre, joint.centre_sigma, lines)
-        }
+        Model::Noncentral => (
+            joint.centre,
+            joint.centre_sigma,
+            noncentral_lines(&by_ray, &joint.centre),
+        ),
     };
     let rays = by_ray
         .iter()
         .map(|(id, pts)| {
             let (direction, offset) = lines[id];
+            // A free line through two points always fits: its miss is that of the central fit.
+            let (miss_point, miss_direction) = if model == Model::Noncentral && pts.len() < 3 {
+                (joint.centre, slope_direction(joint.slopes[id]))
+            } else {
+                (centre + offset, direction)
+            };
             let misses: Vec<f64> = pts
                 .iter()
-                .map(|p| miss_distance(&(centre + offset), &direction, &p.point))
+                .map(|p| miss_distance(&miss_point, &miss_direction, &p.point))
                 .collect();
             let miss_rms = (misses.iter().map(|m| m * m).sum::<f64>() / misses.len() as f64).sqrt();
             CalibratedRay {
@@ -730,6 +737,22 @@ mod tests {
                 cal.centre
             );
         }
+    }
+
+    /// A non-central ray on two planes fits any two points exactly: its miss is reported from
+    /// the central fit, so a displaced dot shows instead of a miss of 0.
+    #[test]
+    fn two_plane_noncentral_rays_report_the_central_miss() {
+        let (centre, rays) = truth();
+        let mut imgs = images(centre, &rays, &table2(), &[0.0; 3]);
+        let lost = rays[4].0;
+        imgs[2].dots.retain(|d| d.id != lost);
+        let dot = imgs[1].dots.iter_mut().find(|d| d.id == lost).unwrap();
+        dot.col += 2.0;
+        let cal = calibrate_projector(&GRID, &inner(), &imgs, Model::Noncentral, 0.5).unwrap();
+        let ray = cal.rays.iter().find(|r| r.id == lost).unwrap();
+        assert_eq!(ray.planes, 2);
+        assert!(ray.miss_rms > 0.1, "miss {}", ray.miss_rms);
     }
 
     #[test]
