@@ -9,7 +9,7 @@ use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
-use crate::plates::{plate_images, plate_observations, resect_all, resect_images};
+use crate::plates::{plate_images, plate_observations, resect_all};
 use crate::ply::{write_ply, Encoding};
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
@@ -171,7 +171,9 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
 }
 
 /// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
-/// system.json written atomically only when everything succeeded.
+/// system.json written atomically only when everything succeeded. Images too poorly controlled
+/// to resect and rays seen on one plate are left out (or, central models, determined through the
+/// centre) and listed on stderr and in the file; `strict` makes them errors.
 pub fn calibrate_projector(
     camera: &Path,
     control: &Path,
@@ -179,6 +181,7 @@ pub fn calibrate_projector(
     out: &Path,
     model: Model,
     image_sigma_px: f64,
+    strict: bool,
 ) -> Result<()> {
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
@@ -189,15 +192,24 @@ pub fn calibrate_projector(
         .collect();
     check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
-    let poses: Vec<_> = resect_images(obs, &grid, &inner, &observations, &control_points)?
-        .into_iter()
-        .map(|(image, r)| (image, r.exterior))
+    let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
+    let poses: Vec<_> = resected
+        .results
+        .iter()
+        .map(|(image, r)| (image.clone(), r.exterior))
         .collect();
-    let images = plate_images(&observations, &poses)
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
+    let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", obs.display());
+    let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
     let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
-    let content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+        .map_err(|e| in_file(&e))?;
+    let warnings = Warnings {
+        left_out_images: resected.left_out,
+        single_plane_rays: projector.single_plane.clone(),
+        left_out_rays: projector.left_out.clone(),
+    };
+    report_warnings(obs, &warnings, strict)?;
+    let mut content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+    content.warnings = warnings;
     content.rig()?;
     let file = SystemFile::new(content)?;
     write_atomic(out, file.to_json()?.as_bytes())?;
@@ -218,6 +230,22 @@ pub fn calibrate_projector(
         file.fingerprint,
         out.display()
     );
+    Ok(())
+}
+
+/// Left-out images and rays: an error naming them with `strict`, else one warning line each on
+/// stderr.
+fn report_warnings(obs: &Path, warnings: &Warnings, strict: bool) -> Result<()> {
+    if strict && !warnings.is_empty() {
+        bail!(
+            "{}: --strict: {}",
+            obs.display(),
+            warnings.lines().join("; ")
+        );
+    }
+    for line in warnings.lines() {
+        eprintln!("warning: {line}");
+    }
     Ok(())
 }
 
@@ -292,16 +320,7 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
         },
         left_out_rays: adjustment.left_out.clone(),
     };
-    if args.strict && !warnings.is_empty() {
-        bail!(
-            "{}: --strict: {}",
-            args.obs.display(),
-            warnings.lines().join("; ")
-        );
-    }
-    for line in warnings.lines() {
-        eprintln!("warning: {line}");
-    }
+    report_warnings(&args.obs, &warnings, args.strict)?;
     let content = SystemContent::from_adjustment(grid, &adjustment, args.noncentral, warnings);
     content.rig()?;
     let file = SystemFile::new(content)?;

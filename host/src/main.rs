@@ -333,6 +333,9 @@ enum CalibrateWhat {
         /// Image noise (px) weighting the plane points and giving the rays' covariances.
         #[arg(long, default_value_t = 0.5)]
         image_sigma_px: f64,
+        /// Images that cannot be resected and rays seen on one plate are errors.
+        #[arg(long)]
+        strict: bool,
     },
     /// Camera and projector in one: the camera by bundle adjustment, then plates, control,
     /// projector and camera (as a prior) in one whole-system adjustment with variance components;
@@ -546,6 +549,7 @@ fn main() -> anyhow::Result<()> {
                     out,
                     model,
                     image_sigma_px,
+                    strict,
                 },
         } => {
             let obs = match (obs, folder.with_control(&control)) {
@@ -568,7 +572,7 @@ fn main() -> anyhow::Result<()> {
                 }
                 (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
             };
-            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px)?
+            cli::calibrate_projector(&camera, &control, &obs, &out, model, image_sigma_px, strict)?
         }
         Command::Calibrate {
             what:

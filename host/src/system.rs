@@ -552,6 +552,8 @@ mod tests {
             centre: Vector3::new(-114.601, 383.502, 1905.981),
             centre_sigma: Vector3::new(0.5, 0.5, 2.0),
             rays: vec![ray(1, 0.09159, -0.17179), ray(2, 0.24040, -0.16860)],
+            single_plane: Vec::new(),
+            left_out: Vec::new(),
         };
         let pose = ExteriorOrientation {
             kappa: 0.01329,
