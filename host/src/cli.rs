@@ -18,7 +18,7 @@ use crate::reconstruct::reconstruct as reconstruct_points;
 use crate::system::SystemContent;
 use crate::system::{SystemFile, Warnings};
 use anyhow::{bail, Result};
-use deltaz_calib::system_adjustment::{adjust_system, SystemInput};
+use deltaz_calib::system_adjustment::{adjust_system, Frame, SystemInput};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 
@@ -36,6 +36,24 @@ impl From<MethodArg> for Method {
         match m {
             MethodArg::Paper => Method::Paper,
             MethodArg::Closest => Method::ClosestApproach,
+        }
+    }
+}
+
+/// `--frame` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FrameArg {
+    /// The camera system (the instrument's own frame).
+    Camera,
+    /// The plate (control) frame of the datum image.
+    Plate,
+}
+
+impl From<FrameArg> for Frame {
+    fn from(f: FrameArg) -> Self {
+        match f {
+            FrameArg::Camera => Frame::Camera,
+            FrameArg::Plate => Frame::Plate,
         }
     }
 }
@@ -78,6 +96,8 @@ pub struct ReconstructArgs {
     pub sigma_px: Option<f64>,
     /// Intersection method.
     pub method: MethodArg,
+    /// The points' frame.
+    pub frame: FrameArg,
 }
 
 /// The dot rows of an observations file (all rows when none is marked `dot`), each label a ray
@@ -126,16 +146,26 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<()> {
         Some(&calibration),
     )
     .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.obs.display()))?;
+    if args.frame == FrameArg::Plate && model.is_none() {
+        bail!(
+            "{}: --frame plate needs the covariance of `calibrate system`",
+            args.system.display()
+        );
+    }
     // With the whole-system adjustment's covariance every point gets its σ (camera, projector
-    // and the dots' estimated image noise, or --sigma-px).
+    // and the dots' estimated image noise, or --sigma-px); in the plate frame with the
+    // transform's share.
     if let Some(mut model) = model {
         if let Some(s) = args.sigma_px {
             model.sigma_dots_px = s;
         }
         for (p, dot) in points.iter_mut().zip(&plain) {
             let q = model
-                .reconstruct(rig.grid(), dot, args.method.into())
+                .reconstruct(rig.grid(), dot, args.method.into(), args.frame.into())
                 .map_err(|e| anyhow::anyhow!("{}: {e}", args.obs.display()))?;
+            if args.frame == FrameArg::Plate {
+                p.point = q.point;
+            }
             p.sigma = Some((q.image + q.calibration).diagonal().map(f64::sqrt));
         }
     }

@@ -69,6 +69,10 @@ enum Command {
         /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
+        /// The points' frame: `camera` (the instrument's own) or `plate` (the control frame of
+        /// the datum plate image of `calibrate system`, the transform's σ included).
+        #[arg(long, default_value = "camera")]
+        frame: cli::FrameArg,
     },
     /// Space resection: the exterior orientation of every image from known control.
     Resect {
@@ -462,6 +466,7 @@ fn main() -> anyhow::Result<()> {
             ascii,
             sigma_px,
             method,
+            frame,
         } => cli::reconstruct(&cli::ReconstructArgs {
             system,
             obs,
@@ -470,6 +475,7 @@ fn main() -> anyhow::Result<()> {
             ascii,
             sigma_px,
             method,
+            frame,
         })?,
         Command::Resect {
             camera,
