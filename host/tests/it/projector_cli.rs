@@ -26,25 +26,28 @@ fn setup(dir: &Path) {
 }
 
 fn calibrate(dir: &Path, control: &str, obs: &str, model: &str) -> Output {
-    deltaz(
-        &[
-            "calibrate",
-            "projector",
-            "--camera",
-            "camera.json",
-            "--control",
-            control,
-            "--obs",
-            obs,
-            "--out",
-            "system.json",
-            "--model",
-            model,
-            "--image-sigma-px",
-            "0.1",
-        ],
-        dir,
-    )
+    calibrate_with(dir, control, obs, model, &[])
+}
+
+fn calibrate_with(dir: &Path, control: &str, obs: &str, model: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "calibrate",
+        "projector",
+        "--camera",
+        "camera.json",
+        "--control",
+        control,
+        "--obs",
+        obs,
+        "--out",
+        "system.json",
+        "--model",
+        model,
+        "--image-sigma-px",
+        "0.1",
+    ];
+    args.extend_from_slice(extra);
+    deltaz(&args, dir)
 }
 
 fn stderr(o: &Output) -> String {
@@ -252,22 +255,7 @@ fn desk_rig_lists_left_out_images_and_rays() {
         .collect();
     assert!(!single.is_empty() && single.len() < plates.len() / 2);
 
-    let strict = deltaz(
-        &[
-            "calibrate",
-            "projector",
-            "--camera",
-            "camera.json",
-            "--control",
-            "plate_control.csv",
-            "--obs",
-            "cut.csv",
-            "--out",
-            "system.json",
-            "--strict",
-        ],
-        d,
-    );
+    let strict = calibrate_with(d, "plate_control.csv", "cut.csv", "joint", &["--strict"]);
     assert!(!strict.status.success());
     assert!(
         stderr(&strict).contains("--strict: image \"p2\" left out"),

@@ -317,26 +317,30 @@ mod cli {
         // The camera system is the frame: the camera sits at the origin.
         assert_eq!(file.content.camera.pose.centre, [0.0; 3]);
 
-        let rec = deltaz(
-            &[
+        // reconstruct --csv NAME.csv [extra], its CSV.
+        let reconstruct = |name: &str, extra: &[&str]| {
+            let (ply, csv) = (format!("{name}.ply"), format!("{name}.csv"));
+            let mut args = vec![
                 "reconstruct",
                 "--system",
                 "system.json",
                 "--obs",
                 "plate_obs.csv",
                 "--out",
-                "points.ply",
+                &ply,
                 "--csv",
-                "points.csv",
-            ],
-            d,
-        );
-        assert!(
-            rec.status.success(),
-            "{}",
-            String::from_utf8_lossy(&rec.stderr)
-        );
-        let csv = std::fs::read_to_string(d.join("points.csv")).unwrap();
+                &csv,
+            ];
+            args.extend_from_slice(extra);
+            let rec = deltaz(&args, d);
+            assert!(
+                rec.status.success(),
+                "{}",
+                String::from_utf8_lossy(&rec.stderr)
+            );
+            std::fs::read_to_string(d.join(&csv)).unwrap()
+        };
+        let csv = reconstruct("points", &[]);
         let mut lines = csv.lines();
         assert!(lines.next().unwrap().ends_with("sigma_X,sigma_Y,sigma_Z"));
         let mut count = 0;
@@ -357,28 +361,7 @@ mod cli {
 
         // The plate frame of the datum image: that image's dots lie on its plate, Z = 0.
         let datum = cov.datum.as_ref().unwrap().image.clone();
-        let rec = deltaz(
-            &[
-                "reconstruct",
-                "--system",
-                "system.json",
-                "--obs",
-                "plate_obs.csv",
-                "--out",
-                "plate.ply",
-                "--csv",
-                "plate.csv",
-                "--frame",
-                "plate",
-            ],
-            d,
-        );
-        assert!(
-            rec.status.success(),
-            "{}",
-            String::from_utf8_lossy(&rec.stderr)
-        );
-        let csv = std::fs::read_to_string(d.join("plate.csv")).unwrap();
+        let csv = reconstruct("plate", &["--frame", "plate"]);
         let mut on_plate = 0;
         for line in csv
             .lines()
