@@ -142,6 +142,10 @@ pub fn line_covariance(centre_z: f64, points: &[PlanePoint]) -> LineCovariance {
         sx += w * x;
         sxx += w * x * x;
     }
+    if points.len() == 1 {
+        // The line through the (exact) centre and its one point: only the slope varies.
+        return LineCovariance([[0.0, 0.0, 1.0 / (sw * sxx)]; 2]);
+    }
     let det = sw * sxx - sx * sx;
     let one = [sxx / det, -sx / det, sw / det];
     LineCovariance([one, one])
@@ -158,6 +162,12 @@ pub struct ProjectorCalibration {
     pub centre_sigma: Vector3<f64>,
     /// The rays, sorted by id.
     pub rays: Vec<CalibratedRay>,
+    /// Rays seen on one plate only, determined through the centre (central models).
+    #[serde(default)]
+    pub single_plane: Vec<u16>,
+    /// Rays seen on one plate only and left out (the non-central model needs two).
+    #[serde(default)]
+    pub left_out: Vec<u16>,
 }
 
 /// The frame the rays are fixed in: the 1st image's camera pose carried to its plate frame.
@@ -237,7 +247,8 @@ pub struct PlanePoint {
     pub sigma: f64,
 }
 
-/// Steps 5 and the frame change for every dot of every image: ray id → its points, one per plane.
+/// Steps 5 and the frame change for every dot of every image: ray id → its points, one per plane
+/// (a ray seen on one plate has one point).
 /// `image_sigma_px` is the image noise (pixels) used to weight the points.
 pub fn plane_points(
     grid: &PixelGrid<f64>,
@@ -269,21 +280,6 @@ pub fn plane_points(
                 sigma,
             });
         }
-    }
-    let lonely: Vec<_> = by_ray
-        .iter()
-        .filter(|(_, p)| p.len() < 2)
-        .map(|(id, _)| *id)
-        .collect();
-    if !lonely.is_empty() {
-        bail!(
-            "rays seen on fewer than two planes cannot be calibrated: {}",
-            lonely
-                .iter()
-                .map(u16::to_string)
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
     }
     Ok(by_ray)
 }
@@ -483,7 +479,9 @@ pub fn miss_distance(line_point: &Vector3<f64>, direction: &Vector3<f64>, x: &Ve
 }
 
 /// The whole projector calibration: steps 5-7 (and the models beyond), with per-ray miss
-/// distances. Errors name rays seen on fewer than two planes.
+/// distances. The centre comes from the rays seen on two planes or more; a ray seen on one plate
+/// is determined by the central models through the centre (listed in `single_plane`), and left
+/// out by the non-central one (listed in `left_out`).
 pub fn calibrate_projector(
     grid: &PixelGrid<f64>,
     inner: &InnerOrientation<f64>,
@@ -497,7 +495,12 @@ pub fn calibrate_projector(
             images.len()
         );
     }
-    let by_ray = plane_points(grid, inner, images, image_sigma_px)?;
+    let all = plane_points(grid, inner, images, image_sigma_px)?;
+    let (by_ray, single): (BTreeMap<_, _>, BTreeMap<_, _>) =
+        all.into_iter().partition(|(_, pts)| pts.len() >= 2);
+    if by_ray.is_empty() {
+        bail!("no ray is seen on two planes: the projector centre is undetermined");
+    }
     let (paper_centre, paper_sigma) = centre_by_delta_z(&by_ray)?;
     // The rays' covariances use the image noise the data show, not the one assumed.
     let joint = joint_adjustment(&by_ray, paper_centre)?;
@@ -516,7 +519,7 @@ pub fn calibrate_projector(
             (paper_centre, paper_sigma, lines)
         }
         Model::Joint => {
-            let fit = joint;
+            let fit = joint.clone();
             let lines = fit
                 .slopes
                 .into_iter()
@@ -524,18 +527,40 @@ pub fn calibrate_projector(
                 .collect();
             (fit.centre, fit.centre_sigma, lines)
         }
-        Model::Noncentral => {
-            let lines = noncentral_lines(&by_ray, &joint.centre);
-            (joint.centre, joint.centre_sigma, lines)
-        }
+        Model::Noncentral => (
+            joint.centre,
+            joint.centre_sigma,
+            noncentral_lines(&by_ray, &joint.centre),
+        ),
     };
-    let rays = by_ray
+    let (single_plane, left_out): (Vec<u16>, Vec<u16>) = match model {
+        Model::Noncentral => (Vec::new(), single.keys().copied().collect()),
+        _ => (single.keys().copied().collect(), Vec::new()),
+    };
+    let mut lines = lines;
+    for id in &single_plane {
+        let direction = direction_cosines(&centre, &single[id]);
+        lines.insert(*id, (direction, Vector3::zeros()));
+    }
+    let mut determined = by_ray.clone();
+    determined.extend(
+        single
+            .into_iter()
+            .filter(|(id, _)| single_plane.contains(id)),
+    );
+    let rays = determined
         .iter()
         .map(|(id, pts)| {
             let (direction, offset) = lines[id];
+            // A free line through two points always fits: its miss is that of the central fit.
+            let (miss_point, miss_direction) = if model == Model::Noncentral && pts.len() < 3 {
+                (joint.centre, slope_direction(joint.slopes[id]))
+            } else {
+                (centre + offset, direction)
+            };
             let misses: Vec<f64> = pts
                 .iter()
-                .map(|p| miss_distance(&(centre + offset), &direction, &p.point))
+                .map(|p| miss_distance(&miss_point, &miss_direction, &p.point))
                 .collect();
             let miss_rms = (misses.iter().map(|m| m * m).sum::<f64>() / misses.len() as f64).sqrt();
             CalibratedRay {
@@ -554,6 +579,8 @@ pub fn calibrate_projector(
         centre,
         centre_sigma,
         rays,
+        single_plane,
+        left_out,
     })
 }
 
@@ -732,6 +759,22 @@ mod tests {
         }
     }
 
+    /// A non-central ray on two planes fits any two points exactly: its miss is reported from
+    /// the central fit, so a displaced dot shows instead of a miss of 0.
+    #[test]
+    fn two_plane_noncentral_rays_report_the_central_miss() {
+        let (centre, rays) = truth();
+        let mut imgs = images(centre, &rays, &table2(), &[0.0; 3]);
+        let lost = rays[4].0;
+        imgs[2].dots.retain(|d| d.id != lost);
+        let dot = imgs[1].dots.iter_mut().find(|d| d.id == lost).unwrap();
+        dot.col += 2.0;
+        let cal = calibrate_projector(&GRID, &inner(), &imgs, Model::Noncentral, 0.5).unwrap();
+        let ray = cal.rays.iter().find(|r| r.id == lost).unwrap();
+        assert_eq!(ray.planes, 2);
+        assert!(ray.miss_rms > 0.1, "miss {}", ray.miss_rms);
+    }
+
     #[test]
     fn coplanar_control_is_an_error() {
         let mut control: Vec<(String, Vector3<f64>)> = (0..12)
@@ -748,20 +791,35 @@ mod tests {
         check_raised_control(&control).unwrap();
     }
 
+    /// A ray seen on one plane: the central models determine it through the centre (exact
+    /// data: its direction is the truth), the non-central model leaves it out; both list it.
     #[test]
-    fn rays_on_one_plane_are_an_error() {
+    fn rays_on_one_plane_are_listed() {
         let (centre, rays) = truth();
         let (lost, half_lost) = (rays[4].0, rays[2].0);
         let mut imgs = images(centre, &rays, &table2(), &[0.0; 3]);
         imgs[1].dots.retain(|d| d.id != lost);
         imgs[2].dots.retain(|d| d.id != lost && d.id != half_lost);
-        let err = calibrate_projector(&GRID, &inner(), &imgs, Model::Paper, 0.5).unwrap_err();
-        assert!(
-            err.to_string().contains(&format!(
-                "fewer than two planes cannot be calibrated: {lost}"
-            )),
-            "{err}"
-        );
+        for model in [Model::Paper, Model::Joint] {
+            let cal = calibrate_projector(&GRID, &inner(), &imgs, model, 0.5).unwrap();
+            assert_eq!(
+                (cal.single_plane.clone(), cal.left_out.clone()),
+                (vec![lost], vec![])
+            );
+            let ray = cal.rays.iter().find(|r| r.id == lost).unwrap();
+            assert_eq!(ray.planes, 1);
+            let truth = rays[4].1;
+            assert!(
+                (ray.direction - truth).amax() < 1e-6,
+                "{model:?}: {}",
+                ray.direction
+            );
+            assert!(ray.line_cov.0[0].iter().all(|v| v.is_finite()));
+        }
+        let cal = calibrate_projector(&GRID, &inner(), &imgs, Model::Noncentral, 0.5).unwrap();
+        assert_eq!((cal.single_plane, cal.left_out), (vec![], vec![lost]));
+        assert_eq!(cal.rays.len(), rays.len() - 1);
+        assert!(cal.rays.iter().all(|r| r.id != lost));
         let mut twice = images(centre, &rays, &table2(), &[0.0; 3]);
         let dup = twice[1].dots[0];
         twice[1].dots.push(dup);

@@ -20,6 +20,11 @@
 //! in the bundle. Variance components: σ_g² ← σ_g² vᵀ_g P_g v_g / r_g, r_g the group's sum of
 //! redundancy numbers, until they settle; the covariances then use the estimated σ.
 //!
+//! The plate frame as an option: the control frame as the plate stood in one image (the datum
+//! image: the one whose camera position the adjustment determines best), with that image's pose
+//! and its covariance with everything else in the core, so a point's σ in the plate frame
+//! includes the transform's share ([`Frame`]).
+//!
 //! Incomplete data: a ray seen on one plate has no redundancy but the central model still
 //! determines it (the centre and one point); the non-central model cannot, and leaves it out.
 
@@ -152,8 +157,8 @@ fn line_of(centre: &Vector3<f64>, params: &[f64]) -> (Vector3<f64>, Vector3<f64>
 }
 
 /// What a reconstructed point and its σ depend on: the camera, the projector in the camera
-/// system, and their covariance (the core [free inner | P] and per ray its own block and its
-/// covariance with the core), with the image noise of the dots. Stored in `system.json`.
+/// system, and their covariance (the core [free inner | P | datum pose] and per ray its own block
+/// and its covariance with the core), with the image noise of the dots. Stored in `system.json`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SystemModel {
     /// Inner orientation.
@@ -164,10 +169,30 @@ pub struct SystemModel {
     pub centre: Vector3<f64>,
     /// The rays, sorted by id.
     pub rays: Vec<AdjustedRay>,
-    /// Covariance of the core [free inner | P].
+    /// Covariance of the core [free inner | P | datum pose (κ, φ, ω, X0, Y0, Z0) if any].
     pub core_covariance: DMatrix<f64>,
     /// Estimated image noise of the dots (px).
     pub sigma_dots_px: f64,
+    /// The plate frame's datum image, if the model carries one.
+    pub datum: Option<Datum>,
+}
+
+/// The plate image whose plate frame is offered as the points' frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Datum {
+    /// The image's label.
+    pub image: String,
+    /// The camera's adjusted pose in that plate frame.
+    pub pose: ExteriorOrientation<f64>,
+}
+
+/// The frame a point is given in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Frame {
+    /// The camera system (the instrument's own frame, the default).
+    Camera,
+    /// The plate (control) frame of the datum image, the transform's covariance propagated.
+    Plate,
 }
 
 /// The adjusted system.
@@ -196,7 +221,7 @@ impl SystemModel {
         Vector3::from_fn(|a, _| self.core_covariance[(k + a, k + a)].sqrt())
     }
 
-    /// The covariance of [free inner | P | ray params] for ray `index`.
+    /// The covariance of [core | ray params] for ray `index`.
     pub fn ray_parameter_covariance(&self, index: usize) -> DMatrix<f64> {
         let ray = &self.rays[index];
         let (k, m) = (self.core_covariance.nrows(), ray.params.len());
@@ -517,9 +542,19 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
         }
     }
     let (normal, s_inv, v_inv, red) = result.ok_or(SystemError::Singular)?;
-    // The core [free inner | P] of the reduced covariance.
+    // The datum image: the smallest variance of the camera position in the plate frame.
+    let position_variance = |k: usize| {
+        (3..6)
+            .map(|a| s_inv[(layout.pose(k) + a, layout.pose(k) + a)])
+            .sum::<f64>()
+    };
+    let datum = (0..plates.len())
+        .min_by(|a, b| position_variance(*a).total_cmp(&position_variance(*b)))
+        .unwrap_or(0);
+    // The core [free inner | P | datum pose] of the reduced covariance.
     let core: Vec<usize> = (0..inner_free.len())
         .chain((0..3).map(|a| layout.centre() + a))
+        .chain((0..6).map(|a| layout.pose(datum) + a))
         .collect();
     let core_covariance =
         DMatrix::from_fn(core.len(), core.len(), |a, b| s_inv[(core[a], core[b])]);
@@ -583,6 +618,10 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
             rays: adjusted,
             core_covariance,
             sigma_dots_px: sigma[1] / px,
+            datum: Some(Datum {
+                image: plates[datum].image.clone(),
+                pose: state.poses[datum],
+            }),
         },
         poses: state.poses,
         sigma_targets_px: sigma[0] / px,
@@ -853,16 +892,26 @@ pub struct SystemPoint {
 }
 
 impl SystemModel {
-    /// A dot reconstructed in the camera system with its covariance: from the image noise of
-    /// the dot (the estimated σ of the dots) and from the calibration (inner orientation,
-    /// centre and the ray's parameters with all their correlations), first-order by central
-    /// differences.
+    /// A dot reconstructed in `frame` with its covariance: from the image noise of the dot (the
+    /// estimated σ of the dots) and from the calibration (inner orientation, centre, the ray's
+    /// parameters and, in the plate frame, the datum pose, with all their correlations),
+    /// first-order by central differences.
     pub fn reconstruct(
         &self,
         grid: &PixelGrid<f64>,
         dot: &DotObservation,
         method: Method,
+        frame: Frame,
     ) -> Result<SystemPoint, SystemError> {
+        let datum = match (frame, &self.datum) {
+            (Frame::Plate, None) => {
+                return Err(SystemError::Geometry(
+                    "the calibration has no plate datum: points are in the camera system only"
+                        .into(),
+                ))
+            }
+            (_, datum) => datum.as_ref().map(|d| d.pose),
+        };
         let index = self
             .rays
             .binary_search_by_key(&dot.id, |r| r.id)
@@ -875,6 +924,10 @@ impl SystemModel {
             .map(|&i| inner_to_array(&self.inner)[i])
             .collect();
         theta.extend(self.centre.iter());
+        let ray_at = k + 3 + if datum.is_some() { 6 } else { 0 };
+        if let Some(pose) = &datum {
+            theta.extend(pose_array(pose));
+        }
         theta.extend(&ray.params);
         let point = |theta: &[f64], col: f64, row: f64| -> Result<Vector3<f64>, SystemError> {
             let mut a = inner_to_array(&self.inner);
@@ -888,7 +941,7 @@ impl SystemModel {
                 direction: Vector3::new(refined.x, refined.y, -inner.f),
             };
             let centre = Vector3::new(theta[k], theta[k + 1], theta[k + 2]);
-            let p = &theta[k + 3..];
+            let p = &theta[ray_at..];
             let offset = match p.len() {
                 4 => Vector3::new(p[2], p[3], 0.0),
                 _ => Vector3::zeros(),
@@ -901,8 +954,16 @@ impl SystemModel {
                 Method::Paper => intersect_paper(&camera, &projector),
                 Method::ClosestApproach => closest_approach(&camera, &projector),
             };
-            hit.map(|h| h.point)
-                .map_err(|e| SystemError::Geometry(format!("ray {}: {e}", dot.id)))
+            let x = hit
+                .map(|h| h.point)
+                .map_err(|e| SystemError::Geometry(format!("ray {}: {e}", dot.id)))?;
+            Ok(match frame {
+                Frame::Camera => x,
+                Frame::Plate => {
+                    let pose: [f64; 6] = theta[k + 3..k + 9].try_into().unwrap_or([0.0; 6]);
+                    pose_from(pose).camera_to_world(&x)
+                }
+            })
         };
         let x = point(&theta, dot.col, dot.row)?;
         let h_px = 0.01;

@@ -16,7 +16,9 @@ use crate::reconstruct::{calibration_covariance, covariance, reconstruct};
 use crate::simulate::Simulation;
 use crate::system::{RayCovariances, SystemContent, SystemRig};
 use anyhow::{Context, Result};
-use deltaz_calib::system_adjustment::{adjust_system, CameraPrior, SystemAdjustment, SystemInput};
+use deltaz_calib::system_adjustment::{
+    adjust_system, CameraPrior, Frame, SystemAdjustment, SystemInput,
+};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::rig::Method;
@@ -309,14 +311,15 @@ pub struct TruthPoint {
     pub calibration: Matrix3<f64>,
 }
 
-/// The dots of plate image `image` (not used in the adjustment) reconstructed in the camera
-/// system and compared with the true points: per dot the error and the covariance (image noise
-/// plus calibration).
+/// The dots of plate image `image` (not used in the adjustment) reconstructed in `frame` (the
+/// camera system, or the plate frame of the model's datum image) and compared with the true
+/// points: per dot the error and the covariance (image noise plus calibration).
 pub fn system_against_truth(
     sim: &Simulation,
     adjustment: &SystemAdjustment,
     image: usize,
     method: Method,
+    frame: Frame,
 ) -> Result<Vec<TruthPoint>> {
     let grid = sim.camera_init.grid();
     let pose: ExteriorOrientation<f64> = sim.truth.plate.images[image].camera.into();
@@ -339,6 +342,15 @@ pub fn system_against_truth(
             let start = centre + Vector3::from(ray.offset_camera);
             let dir = Vector3::from(ray.camera);
             let truth = start + dir * ((d - normal.dot(&start)) / normal.dot(&dir));
+            let truth = match (frame, &adjustment.model.datum) {
+                (Frame::Plate, Some(datum)) => {
+                    let k: usize = datum.image.trim_start_matches('p').parse()?;
+                    let pose: ExteriorOrientation<f64> =
+                        sim.truth.plate.images[k - 1].camera.into();
+                    pose.camera_to_world(&truth)
+                }
+                _ => truth,
+            };
             let dot = crate::projector_calibration::DotObservation {
                 id,
                 col: o.col,
@@ -346,7 +358,7 @@ pub fn system_against_truth(
             };
             let p = adjustment
                 .model
-                .reconstruct(&grid, &dot, method)
+                .reconstruct(&grid, &dot, method, frame)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             Ok(TruthPoint {
                 error: p.point - truth,

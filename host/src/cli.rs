@@ -9,15 +9,14 @@ use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
-use crate::plates::{plate_images, plate_observations, resect_all, resect_images};
-use crate::ply::RIG_FRAME;
+use crate::plates::{plate_images, plate_observations, resect_all};
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
 };
 use crate::system::SystemContent;
 use crate::system::{SystemFile, Warnings};
 use anyhow::{bail, Result};
-use deltaz_calib::system_adjustment::{adjust_system, SystemInput};
+use deltaz_calib::system_adjustment::{adjust_system, Frame, SystemInput};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 
@@ -124,6 +123,24 @@ impl From<MethodArg> for Method {
     }
 }
 
+/// `--frame` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FrameArg {
+    /// The camera system (the instrument's own frame).
+    Camera,
+    /// The plate (control) frame of the datum image.
+    Plate,
+}
+
+impl From<FrameArg> for Frame {
+    fn from(f: FrameArg) -> Self {
+        match f {
+            FrameArg::Camera => Frame::Camera,
+            FrameArg::Plate => Frame::Plate,
+        }
+    }
+}
+
 /// Labelled points of a CSV `point,X,Y,Z` or a PLY cloud (by its extension).
 pub fn read_points(path: &Path) -> Result<Vec<(String, nalgebra::Vector3<f64>)>> {
     if path
@@ -194,6 +211,8 @@ pub struct ReconstructArgs {
     pub sigma_px: Option<f64>,
     /// Intersection method.
     pub method: MethodArg,
+    /// The points' frame.
+    pub frame: FrameArg,
 }
 
 /// The dot rows of an observations file (all rows when none is marked `dot`), each label a ray
@@ -228,17 +247,18 @@ pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
     let s = crate::reconstruct_stream::reconstruct_stream(args)?;
     output.result(
         &format!(
-            "{} points from {} images, miss distance RMS {:.3} mm, in the rig frame (mm) -> {}\n",
+            "{} points from {} images, miss distance RMS {:.3} mm, in the {} (mm) -> {}\n",
             s.points,
             s.images,
             s.miss_rms,
+            s.frame,
             args.out.display()
         ),
         &serde_json::json!({
             "points": s.points,
             "images": s.images,
             "miss_rms_mm": s.miss_rms,
-            "frame": RIG_FRAME,
+            "frame": s.frame,
             "fingerprint": s.fingerprint,
             "out": args.out,
             "csv": args.csv,
@@ -263,10 +283,14 @@ pub struct ProjectorArgs {
     pub image_sigma_px: f64,
     /// Directory of SVG plots, if any.
     pub plots: Option<PathBuf>,
+    /// Left-out images and rays are errors.
+    pub strict: bool,
 }
 
 /// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
-/// system.json written atomically only when everything succeeded.
+/// system.json written atomically only when everything succeeded. Images too poorly controlled
+/// to resect and rays seen on one plate are left out (or, central models, determined through the
+/// centre) and listed on stderr and in the file; `strict` makes them errors.
 pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
     let ProjectorArgs {
         camera,
@@ -276,8 +300,9 @@ pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
         model,
         image_sigma_px,
         plots,
+        strict,
     } = args;
-    let (model, image_sigma_px) = (*model, *image_sigma_px);
+    let (model, image_sigma_px, strict) = (*model, *image_sigma_px, *strict);
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
     let control_points = read_control(control)?;
@@ -287,15 +312,24 @@ pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
         .collect();
     check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
-    let poses: Vec<_> = resect_images(obs, &grid, &inner, &observations, &control_points)?
-        .into_iter()
-        .map(|(image, r)| (image, r.exterior))
+    let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
+    let poses: Vec<_> = resected
+        .results
+        .iter()
+        .map(|(image, r)| (image.clone(), r.exterior))
         .collect();
-    let images = plate_images(&observations, &poses)
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
+    let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", obs.display());
+    let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
     let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", obs.display()))?;
-    let content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+        .map_err(|e| in_file(&e))?;
+    let warnings = Warnings {
+        left_out_images: resected.left_out,
+        single_plane_rays: projector.single_plane.clone(),
+        left_out_rays: projector.left_out.clone(),
+    };
+    report_warnings(obs, &warnings, strict)?;
+    let mut content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+    content.warnings = warnings;
     content.rig()?;
     let file = SystemFile::new(content)?;
     write_atomic(out, file.to_json()?.as_bytes())?;
@@ -343,6 +377,22 @@ pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
             "out": out,
         }),
     )
+}
+
+/// Left-out images and rays: an error naming them with `strict`, else one warning line each on
+/// stderr.
+fn report_warnings(obs: &Path, warnings: &Warnings, strict: bool) -> Result<()> {
+    if strict && !warnings.is_empty() {
+        bail!(
+            "{}: --strict: {}",
+            obs.display(),
+            warnings.lines().join("; ")
+        );
+    }
+    for line in warnings.lines() {
+        eprintln!("warning: {line}");
+    }
+    Ok(())
 }
 
 /// Arguments of `deltaz calibrate system`.
@@ -416,16 +466,7 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
         },
         left_out_rays: adjustment.left_out.clone(),
     };
-    if args.strict && !warnings.is_empty() {
-        bail!(
-            "{}: --strict: {}",
-            args.obs.display(),
-            warnings.lines().join("; ")
-        );
-    }
-    for line in warnings.lines() {
-        eprintln!("warning: {line}");
-    }
+    report_warnings(&args.obs, &warnings, args.strict)?;
     let content = SystemContent::from_adjustment(grid, &adjustment, args.noncentral, warnings);
     content.rig()?;
     let file = SystemFile::new(content)?;

@@ -72,6 +72,10 @@ enum Command {
         /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
+        /// The points' frame: `camera` (the instrument's own) or `plate` (the control frame of
+        /// the datum plate image of `calibrate system`, the transform's σ included).
+        #[arg(long, default_value = "camera")]
+        frame: cli::FrameArg,
         #[command(flatten)]
         output: cli::Output,
     },
@@ -460,6 +464,9 @@ enum CalibrateWhat {
         plots: Option<PathBuf>,
         #[command(flatten)]
         output: cli::Output,
+        /// Images that cannot be resected and rays seen on one plate are errors.
+        #[arg(long)]
+        strict: bool,
     },
     /// Camera and projector in one: the camera by bundle adjustment, then plates, control,
     /// projector and camera (as a prior) in one whole-system adjustment with variance components;
@@ -674,6 +681,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             ascii,
             sigma_px,
             method,
+            frame,
             output,
         } => cli::reconstruct(
             &cli::ReconstructArgs {
@@ -684,6 +692,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 ascii,
                 sigma_px,
                 method,
+                frame,
             },
             output,
         )?,
@@ -822,6 +831,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     image_sigma_px,
                     plots,
                     output,
+                    strict,
                 },
         } => {
             let leftover = ObservationsGuard::new(&out);
@@ -854,6 +864,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     model,
                     image_sigma_px,
                     plots,
+                    strict,
                 },
                 output,
             )?;

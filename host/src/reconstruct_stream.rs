@@ -242,6 +242,8 @@ pub struct StreamSummary {
     pub miss_rms: f64,
     /// The calibration's fingerprint.
     pub fingerprint: String,
+    /// The points' frame, in words.
+    pub frame: String,
 }
 
 /// `deltaz reconstruct`: reads, reconstructs and writes in batches; nothing is left on failure.
@@ -258,6 +260,25 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<StreamSummary> {
             }
             model
         });
+    let plate = args.frame == crate::cli::FrameArg::Plate;
+    let frame = match (&model, plate) {
+        (Some(m), true) => match &m.datum {
+            Some(d) => format!(
+                "plate frame of image {} (the datum of `calibrate system`)",
+                d.image
+            ),
+            None => bail!(
+                "{}: --frame plate needs a datum image, which this file does not name",
+                args.system.display()
+            ),
+        },
+        (None, true) => bail!(
+            "{}: --frame plate needs the covariance of `calibrate system`",
+            args.system.display()
+        ),
+        (Some(_), false) => "camera system (the instrument's own frame)".to_owned(),
+        (None, false) => RIG_FRAME.to_owned(),
+    };
     let method = args.method.into();
     let layout = Layout {
         encoding: if args.ascii {
@@ -320,8 +341,11 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<StreamSummary> {
                     .map_err(|e| at(e.root_cause().to_string()))?[0];
                     if let Some(model) = &model {
                         let q = model
-                            .reconstruct(rig.grid(), &d, method)
+                            .reconstruct(rig.grid(), &d, method, args.frame.into())
                             .map_err(|e| at(e.to_string()))?;
+                        if plate {
+                            p.point = q.point;
+                        }
                         p.sigma = Some((q.image + q.calibration).diagonal().map(f64::sqrt));
                     }
                     miss2 += p.miss * p.miss;
@@ -359,7 +383,7 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<StreamSummary> {
         .with_context(|| format!("{}: cannot write", args.out.display()))?;
     drop(vertex_file);
     let info = CloudInfo {
-        frame: RIG_FRAME.to_owned(),
+        frame: frame.clone(),
         fingerprint: Some(system.fingerprint.clone()),
         frames: None,
     };
@@ -380,5 +404,6 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<StreamSummary> {
         images,
         miss_rms: (miss2 / count as f64).sqrt(),
         fingerprint: system.fingerprint,
+        frame,
     })
 }

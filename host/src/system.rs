@@ -11,7 +11,7 @@
 use crate::projector_calibration::{CalibratedRay, LineCovariance, Model, ProjectorCalibration};
 use anyhow::{bail, Context, Result};
 use deltaz_calib::residual::INNER_NAMES;
-use deltaz_calib::system_adjustment::{AdjustedRay, SystemAdjustment, SystemModel};
+use deltaz_calib::system_adjustment::{AdjustedRay, Datum, SystemAdjustment, SystemModel};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::projector::{Projector, ProjectorRay};
@@ -122,6 +122,19 @@ pub struct SystemCovariance {
     pub dot_sigma_px: f64,
     /// The image noise of the plate targets, estimated (px).
     pub target_sigma_px: f64,
+    /// The plate frame offered as the points' frame: the camera's pose in it, its parameters
+    /// (κ, φ, ω, X0, Y0, Z0) the core's last six.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub datum: Option<StoredDatum>,
+}
+
+/// The datum image and the camera's pose in its plate frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StoredDatum {
+    /// The plate image's label.
+    pub image: String,
+    /// The camera's pose in that plate frame.
+    pub pose: Pose,
 }
 
 /// What the calibration left out or could determine only without redundancy.
@@ -314,6 +327,10 @@ impl SystemContent {
                     core: rows(&m.core_covariance),
                     dot_sigma_px: m.sigma_dots_px,
                     target_sigma_px: adjustment.sigma_targets_px,
+                    datum: m.datum.as_ref().map(|d| StoredDatum {
+                        image: d.image.clone(),
+                        pose: d.pose.into(),
+                    }),
                 }),
             },
             warnings,
@@ -344,7 +361,7 @@ impl SystemContent {
             })
             .collect::<Result<Vec<_>>>()?;
         let core = matrix(&cov.core, "covariance.core")?;
-        let k = inner_free.len() + 3;
+        let k = inner_free.len() + if cov.datum.is_some() { 9 } else { 3 };
         if core.shape() != (k, k) {
             bail!("covariance.core is {:?}, expected {k} × {k}", core.shape());
         }
@@ -382,6 +399,10 @@ impl SystemContent {
             rays,
             core_covariance: core,
             sigma_dots_px: cov.dot_sigma_px,
+            datum: cov.datum.as_ref().map(|d| Datum {
+                image: d.image.clone(),
+                pose: d.pose.into(),
+            }),
         }))
     }
 
@@ -527,6 +548,8 @@ mod tests {
             centre: Vector3::new(-114.601, 383.502, 1905.981),
             centre_sigma: Vector3::new(0.5, 0.5, 2.0),
             rays: vec![ray(1, 0.09159, -0.17179), ray(2, 0.24040, -0.16860)],
+            single_plane: Vec::new(),
+            left_out: Vec::new(),
         };
         let pose = ExteriorOrientation {
             kappa: 0.01329,
