@@ -492,7 +492,6 @@ mod tests {
         assert!(w + scale * 3.0 > 1.05 * w);
         let svg = residual_vectors(&r, 768, 512).unwrap();
         // One red vector per residual plus one legend sample per panel.
-        std::fs::write("/tmp/residual_vectors.svg", &svg).unwrap();
         assert_eq!(
             svg.matches(r##"stroke="#FF0000""##).count(),
             r.len() + 2,
@@ -515,8 +514,10 @@ mod tests {
         // Each point: a filled disc and its outline.
         assert_eq!(svg.matches(r#"r="4""#).count(), 2 * points.len(), "{svg}");
         // i = 29 (+0.19) is the bar's top colour, red; i = 10 (0) white; i = 0 (−0.10) bluish.
-        assert!(svg.contains(r##"fill="#FF0000""##));
-        std::fs::write("/tmp/accuracy_map.svg", &svg).unwrap();
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#FF0000""##));
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#FFFFFF""##));
+        // −0.10 of ±0.19: 0.10 / 0.19 of the way from white to blue, 255 · 0.09 / 0.19 ≈ 121.
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#7979FF""##));
         assert!(
             svg.contains("X (mm)") && svg.contains("Z error (mm)") && svg.contains("30 points")
         );
