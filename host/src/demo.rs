@@ -6,7 +6,8 @@
 //! 3. Calibrate the projector by the ΔZ method (resection per plate image, steps 5-7).
 //! 4. Upload the calibration to the device and send one frame of dot centroids seen on a
 //!    torso-like surface; receive the 3D points ([`measure`]).
-//! 5. Write `cloud.ply`, `report.md`, `report.json`, `residuals.svg` and `plate_errors.svg`.
+//! 5. Write `cloud.ply`, `report.md`, `report.json` and the plots: `residual_vectors.svg`,
+//!    `residual_histogram.svg`, `plate_errors.svg` and `torso_errors.svg`.
 
 use crate::accuracy::{against_truth, calibrate_simulation, paper_experiment, truth_figures};
 use crate::bundle::{calibrate, CalibrationOptions};
@@ -14,11 +15,12 @@ use crate::camera_calibration::{build_problem, camera_file};
 use crate::compare::sample_std_about;
 use crate::io::atomic::write_atomic;
 use crate::link::Device;
+use crate::plots;
 use crate::ply::{encode, Encoding};
 use crate::projector_calibration::{Model, Plane, PlateImage};
 use crate::reconstruct::{covariance, reconstruct, ReconstructedPoint};
+use crate::residuals::Residual;
 use crate::simulate::{simulate, Scenario, Simulation};
-use crate::svg::{error_map, residual_vectors, ResidualPanel};
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
@@ -133,7 +135,7 @@ fn dot_residuals(
     rig: &SystemRig,
     images: &[PlateImage],
     labels: &[String],
-) -> Result<Vec<ResidualPanel>> {
+) -> Result<Vec<Residual>> {
     let first = images.first().context("no plate images")?.exterior;
     let camera = Camera {
         grid: *rig.grid(),
@@ -151,28 +153,28 @@ fn dot_residuals(
             let normal = r_1.transpose() * r_k * Plane::at_z(0.0).normal;
             let on_plate =
                 first.camera_to_world(&image.exterior.world_to_camera(&Vector3::zeros()));
-            let mut vectors = Vec::new();
-            for dot in &image.dots {
-                let ray = projector.ray(dot.id).map_err(|e| anyhow::anyhow!("{e}"))?;
-                let start = ray.point + rig.camera_centre();
-                let t = normal.dot(&(on_plate - start)) / normal.dot(&ray.direction);
-                let predicted = camera
-                    .world_to_pixel(&(start + ray.direction * t))
-                    .map_err(|e| anyhow::anyhow!("ray {}: {e}", dot.id))?;
-                vectors.push((
-                    dot.col,
-                    dot.row,
-                    dot.col - predicted.0,
-                    dot.row - predicted.1,
-                ));
-            }
-            Ok(ResidualPanel {
-                title: format!("plate image {label}: observed − calibrated ray (px)"),
-                size: (f64::from(rig.grid().width), f64::from(rig.grid().height)),
-                vectors,
-            })
+            image
+                .dots
+                .iter()
+                .map(|dot| {
+                    let ray = projector.ray(dot.id).map_err(|e| anyhow::anyhow!("{e}"))?;
+                    let start = ray.point + rig.camera_centre();
+                    let t = normal.dot(&(on_plate - start)) / normal.dot(&ray.direction);
+                    let predicted = camera
+                        .world_to_pixel(&(start + ray.direction * t))
+                        .map_err(|e| anyhow::anyhow!("ray {}: {e}", dot.id))?;
+                    Ok(Residual {
+                        image: format!("plate image {label}"),
+                        point: dot.id.to_string(),
+                        observed: [dot.col, dot.row],
+                        v: [dot.col - predicted.0, dot.row - predicted.1],
+                        rejected: false,
+                    })
+                })
+                .collect::<Result<Vec<_>>>()
         })
-        .collect()
+        .collect::<Result<Vec<_>>>()
+        .map(|images| images.concat())
 }
 
 fn bar(len: u64, what: &str) -> ProgressBar {
@@ -287,14 +289,39 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
         .iter()
         .map(|i| i.image.clone())
         .collect();
-    let residual_svg = residual_vectors(&dot_residuals(&cal.rig, &cal.images, &labels)?, 100.0);
-    let error_svg = error_map(
-        "flat plate (image p3): Z error against truth, camera system",
-        &plate_truth
-            .iter()
-            .map(|c| (c.truth.x, c.truth.y, c.error.z))
-            .collect::<Vec<_>>(),
-    );
+    let residuals = dot_residuals(&cal.rig, &cal.images, &labels)?;
+    let grid = cal.rig.grid();
+    let (histogram, _) = plots::residual_histogram(&residuals)?;
+    let plot_files = [
+        (
+            "residual_vectors.svg",
+            plots::residual_vectors(&residuals, grid.width, grid.height)?,
+        ),
+        ("residual_histogram.svg", histogram),
+        (
+            "plate_errors.svg",
+            plots::accuracy_map(
+                "Flat plate (image p3) against truth, camera system",
+                "Z error",
+                &plate_truth
+                    .iter()
+                    .map(|c| (c.truth.x, c.truth.y, c.error.z))
+                    .collect::<Vec<_>>(),
+            )?,
+        ),
+        (
+            "torso_errors.svg",
+            plots::accuracy_map(
+                "Torso (one device frame) against truth, camera system",
+                "Z error",
+                &measured
+                    .iter()
+                    .zip(&errors)
+                    .map(|((i, _), e)| (truth_points[*i].x, truth_points[*i].y, e.z))
+                    .collect::<Vec<_>>(),
+            )?,
+        ),
+    ];
     let truth_centre = Vector3::from(sim.truth.projector.centre_camera);
     let centre_cam = r * (cal.projector.centre - cal.rig.camera_centre());
     let inner_truth = sim.truth.camera.inner;
@@ -343,8 +370,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     write_atomic(&out.join("cloud.ply"), &ply)?;
     write_atomic(&out.join("system.json"), system.to_json()?.as_bytes())?;
-    write_atomic(&out.join("residuals.svg"), residual_svg.as_bytes())?;
-    write_atomic(&out.join("plate_errors.svg"), error_svg.as_bytes())?;
+    plots::write_plots(out, &plot_files)?;
     write_atomic(
         &out.join("report.json"),
         (serde_json::to_string_pretty(&report)? + "\n").as_bytes(),
@@ -384,8 +410,9 @@ fn report_markdown(r: &serde_json::Value) -> String {
          | the same with the true inner orientation (no camera calibration error) | {} |\n\
          | image-noise floor (propagated) | {} |\n\n\
          RMS of error/σ against the truth: {} (σ from image noise and the projector calibration;\n\
-         the camera calibration's own uncertainty is not propagated, hence the excess). Plots: `residuals.svg` (observed dot − calibrated ray on\n\
-         each plate, ×100), `plate_errors.svg` (Z error map).\n\n\
+         the camera calibration's own uncertainty is not propagated, hence the excess). Plots: `residual_vectors.svg` (observed dot − calibrated\n\
+         ray on each plate, px, magnified), `residual_histogram.svg` (against the normal distribution),\n\
+         `plate_errors.svg` and `torso_errors.svg` (Z error against truth over X, Y, mm).\n\n\
          ## Torso (one frame through the device)\n\n\
          {} dots sent, {} points received (`cloud.ply`). Error against truth (camera system, no fit):\n\
          **{} mm** (`error_std_mm`); with the true inner orientation {} mm; image-noise floor {} mm. Device (f32, fixed-point wire) vs host f64:\n\

@@ -20,7 +20,6 @@ pub mod reconstruct_stream;
 pub mod residuals;
 pub mod scan;
 pub mod simulate;
-pub mod svg;
 pub mod system;
 
 pub use deltaz_calib::{bundle, compare, projector_calibration, reconstruct, resection};

@@ -1,10 +1,11 @@
 //! Plots of a calibration (SVG, drawn with plotters): the residual vectors of every image, the
 //! residual histogram against the expected normal distribution, and the projector rays' miss
-//! distances. Every plot has axes with units, a title with its figures and a legend.
+//! distances, and accuracy maps of reconstructed plates and test objects. Every plot has axes with units, a title with its figures and a legend.
 
 use crate::residuals::{per_image_rms, Residual};
 use anyhow::{anyhow, Result};
 use plotters::prelude::*;
+use std::ops::Range;
 
 /// Font of titles and labels.
 const FONT: (&str, u32) = ("sans-serif", 13);
@@ -23,6 +24,28 @@ fn arrow_scale(largest: f64, extent: f64, fraction: f64) -> f64 {
         .map(|m| m * decade)
         .find(|s| *s <= raw)
         .unwrap_or(decade)
+}
+
+/// The axis ranges of one image's panel: the sensor, every residual vector's tip at `scale`
+/// and a margin (8 % of the span) that holds the scale arrow, so that nothing leaves the panel.
+fn panel_ranges<'a>(
+    own: impl Iterator<Item = &'a Residual>,
+    (w, h): (f64, f64),
+    scale: f64,
+) -> (Range<f64>, Range<f64>) {
+    let (mut x, mut y) = ((0.0_f64, w), (0.0_f64, h));
+    for r in own {
+        for t in [0.0, scale] {
+            let (c, row) = (r.observed[0] + t * r.v[0], r.observed[1] + t * r.v[1]);
+            x = (x.0.min(c), x.1.max(c));
+            y = (y.0.min(row), y.1.max(row));
+        }
+    }
+    let pad = |(lo, hi): (f64, f64)| {
+        let m = 0.08 * (hi - lo);
+        lo - m..hi + m
+    };
+    (pad(x), pad(y))
 }
 
 /// Residual vectors of every image on its sensor (one panel per image), magnified by one
@@ -57,12 +80,14 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
         )
         .map_err(plot_error)?;
         for (panel, (image, rms)) in body.split_evenly((rows, cols)).iter().zip(&images) {
+            let own = residuals.iter().filter(|r| r.image == *image);
+            let (x_range, y_range) = panel_ranges(own.clone(), (w, h), scale);
             let mut chart = ChartBuilder::on(panel)
                 .caption(format!("{image}: RMS {rms:.3} px"), FONT)
                 .margin(6)
                 .x_label_area_size(32)
                 .y_label_area_size(44)
-                .build_cartesian_2d(-0.05 * w..1.05 * w, 1.05 * h..-0.05 * h)
+                .build_cartesian_2d(x_range.clone(), y_range.end..y_range.start)
                 .map_err(plot_error)?;
             chart
                 .configure_mesh()
@@ -74,7 +99,13 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                 .label_style(("sans-serif", 10))
                 .draw()
                 .map_err(plot_error)?;
-            let own = residuals.iter().filter(|r| r.image == *image);
+            // The sensor's outline.
+            chart
+                .draw_series(std::iter::once(Rectangle::new(
+                    [(0.0, 0.0), (w, h)],
+                    RGBColor(200, 200, 200).stroke_width(1),
+                )))
+                .map_err(plot_error)?;
             chart
                 .draw_series(own.clone().map(|r| {
                     let [c, row] = r.observed;
@@ -98,8 +129,11 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                 .map_err(plot_error)?
                 .label("target")
                 .legend(|(x, y)| Circle::new((x + 8, y), 2, BLACK.filled()));
-            // The scale arrow: 1 px of residual, bottom left.
-            let (x0, y0) = (0.0, 1.02 * h);
+            // The scale arrow: 1 px of residual, in the bottom left margin.
+            let (x0, y0) = (
+                x_range.start + 0.02 * (x_range.end - x_range.start),
+                y_range.end - 0.03 * (y_range.end - y_range.start),
+            );
             chart
                 .draw_series(std::iter::once(PathElement::new(
                     vec![(x0, y0), (x0 + scale, y0)],
@@ -116,6 +150,108 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                 .draw()
                 .map_err(plot_error)?;
         }
+        root.present().map_err(plot_error)?;
+    }
+    Ok(svg)
+}
+
+/// The colour bar's limit for signed errors: the largest |error|, so that 0 is white and the bar
+/// runs symmetrically from −limit (blue) to +limit (red).
+fn colour_limit(errors: impl Iterator<Item = f64>) -> f64 {
+    errors.map(f64::abs).fold(0.0, f64::max).max(1e-9)
+}
+
+/// An accuracy map: each point at its (X, Y) in mm, coloured by its error component `what`
+/// (mm; e.g. "Z error") against truth or a reference, with a colour bar from −largest |error|
+/// (blue) through 0 (white) to +largest (red). For plates and test objects alike.
+pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Result<String> {
+    let span = |values: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+        let (lo, hi) = if lo <= hi { (lo, hi) } else { (0.0, 1.0) };
+        let m = 0.05 * (hi - lo).max(1e-6);
+        lo - m..hi + m
+    };
+    // Equal mm per pixel on both axes: the shorter side widens to the plotting area's shape.
+    let (mut x_range, mut y_range) = (
+        span(&mut points.iter().map(|p| p.0)),
+        span(&mut points.iter().map(|p| p.1)),
+    );
+    // The map's plotting area (px): 620 − 2 × 10 margin − 56 labels by 560 − 30 title − 20 − 40.
+    const AREA: (f64, f64) = (544.0, 470.0);
+    let (dx, dy) = (x_range.end - x_range.start, y_range.end - y_range.start);
+    let per_px = (dx / AREA.0).max(dy / AREA.1);
+    let widen = |r: Range<f64>, to: f64| {
+        let extra = 0.5 * (to - (r.end - r.start));
+        r.start - extra..r.end + extra
+    };
+    x_range = widen(x_range, per_px * AREA.0);
+    y_range = widen(y_range, per_px * AREA.1);
+    let limit = colour_limit(points.iter().map(|p| p.2));
+    let colours = DerivedColorMap::new(&[BLUE, WHITE, RED]);
+    let colour = |e: f64| colours.get_color_normalized(e, -limit, limit);
+    let rms = (points.iter().map(|p| p.2 * p.2).sum::<f64>() / points.len().max(1) as f64).sqrt();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (720, 560)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_error)?;
+        let (top, body) = root.split_vertically(30);
+        top.titled(
+            &format!(
+                "{title}: {} points, {what} RMS {rms:.3} mm, largest |{what}| {limit:.3} mm",
+                points.len()
+            ),
+            FONT,
+        )
+        .map_err(plot_error)?;
+        let (map, bar) = body.split_horizontally(620);
+        let mut chart = ChartBuilder::on(&map)
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(56)
+            .build_cartesian_2d(x_range, y_range)
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_desc("X (mm)")
+            .y_desc("Y (mm)")
+            .draw()
+            .map_err(plot_error)?;
+        chart
+            .draw_series(points.iter().map(|&(x, y, e)| {
+                EmptyElement::at((x, y))
+                    + Circle::new((0, 0), 4, colour(e).filled())
+                    + Circle::new((0, 0), 4, RGBColor(90, 90, 90).stroke_width(1))
+            }))
+            .map_err(plot_error)?;
+        let mut bar_chart = ChartBuilder::on(&bar)
+            .margin_top(10)
+            .margin_bottom(50)
+            .margin_right(50)
+            .y_label_area_size(0)
+            .right_y_label_area_size(45)
+            .build_cartesian_2d(0.0..1.0, -limit..limit)
+            .map_err(plot_error)?
+            .set_secondary_coord(0.0..1.0, -limit..limit);
+        bar_chart
+            .configure_secondary_axes()
+            .y_desc(format!("{what} (mm)"))
+            .y_label_formatter(&|v| format!("{:.3}", if v.abs() < 1e-6 * limit { 0.0 } else { *v }))
+            .label_style(("sans-serif", 10))
+            .draw()
+            .map_err(plot_error)?;
+        const STEPS: usize = 64;
+        bar_chart
+            .draw_series((0..STEPS).map(|k| {
+                let step = 2.0 * limit / STEPS as f64;
+                let lo = -limit + k as f64 * step;
+                Rectangle::new(
+                    [(0.0, lo), (1.0, lo + step)],
+                    colour(lo + 0.5 * step).filled(),
+                )
+            }))
+            .map_err(plot_error)?;
         root.present().map_err(plot_error)?;
     }
     Ok(svg)
@@ -318,5 +454,73 @@ mod tests {
         assert!(
             vectors.contains("col (px)") && vectors.contains("a: RMS") && vectors.contains("1 px")
         );
+    }
+
+    /// Vectors at the sensor's corners pointing outwards, the largest 3 px: every tip lies inside
+    /// its panel's axis ranges (with the old fixed 5 % margin the corner tips ran outside).
+    #[test]
+    fn residual_vectors_stay_inside_their_panels() {
+        let (w, h) = (768.0, 512.0);
+        let at = |image: &str, observed: [f64; 2], v: [f64; 2]| Residual {
+            observed,
+            ..residual(image, v)
+        };
+        let r = vec![
+            at("a", [0.0, 0.0], [-2.0, -2.0]),
+            at("a", [w, h], [3.0, 0.5]),
+            at("b", [w, 0.0], [1.0, -3.0]),
+            at("b", [0.0, h], [-0.2, 2.9]),
+        ];
+        let scale = arrow_scale(3.0_f64.hypot(0.5), h, 0.12);
+        for image in ["a", "b"] {
+            let own: Vec<&Residual> = r.iter().filter(|x| x.image == image).collect();
+            let (x, y) = panel_ranges(own.iter().copied(), (w, h), scale);
+            for q in &own {
+                for t in [0.0, scale] {
+                    let (c, row) = (q.observed[0] + t * q.v[0], q.observed[1] + t * q.v[1]);
+                    assert!(x.start < c && c < x.end, "{image}: col {c} outside {x:?}");
+                    assert!(
+                        y.start < row && row < y.end,
+                        "{image}: row {row} outside {y:?}"
+                    );
+                }
+            }
+            // The sensor itself is inside too.
+            assert!(x.start < 0.0 && x.end > w && y.start < 0.0 && y.end > h);
+        }
+        // The largest tip would leave the old fixed range −5 %..105 % of the sensor.
+        assert!(w + scale * 3.0 > 1.05 * w);
+        let svg = residual_vectors(&r, 768, 512).unwrap();
+        // One red vector per residual plus one legend sample per panel.
+        assert_eq!(
+            svg.matches(r##"stroke="#FF0000""##).count(),
+            r.len() + 2,
+            "{svg}"
+        );
+    }
+
+    /// One marker per point coloured on a bar from −largest |error| (blue) to +largest (red):
+    /// the extreme points take the bar's end colours, a zero error is white.
+    #[test]
+    fn accuracy_map_marks_every_point_on_the_colour_bar() {
+        let points: Vec<(f64, f64, f64)> = (0..30)
+            .map(|i| {
+                let (x, y) = (f64::from(i % 6) * 20.0 - 50.0, f64::from(i / 6) * 15.0);
+                (x, y, 0.01 * (f64::from(i) - 10.0))
+            })
+            .collect();
+        assert_eq!(colour_limit(points.iter().map(|p| p.2)), 0.19);
+        let svg = accuracy_map("test plate", "Z error", &points).unwrap();
+        // Each point: a filled disc and its outline.
+        assert_eq!(svg.matches(r#"r="4""#).count(), 2 * points.len(), "{svg}");
+        // i = 29 (+0.19) is the bar's top colour, red; i = 10 (0) white; i = 0 (−0.10) bluish.
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#FF0000""##));
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#FFFFFF""##));
+        // −0.10 of ±0.19: 0.10 / 0.19 of the way from white to blue, 255 · 0.09 / 0.19 ≈ 121.
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#7979FF""##));
+        assert!(
+            svg.contains("X (mm)") && svg.contains("Z error (mm)") && svg.contains("30 points")
+        );
+        assert!(svg.contains("largest |Z error| 0.190 mm"));
     }
 }

@@ -22,8 +22,10 @@ fn demo_writes_its_report() {
         "report.md",
         "report.json",
         "system.json",
-        "residuals.svg",
+        "residual_vectors.svg",
+        "residual_histogram.svg",
         "plate_errors.svg",
+        "torso_errors.svg",
     ] {
         assert!(out.join(name).is_file(), "{name} missing");
     }
@@ -72,8 +74,25 @@ fn demo_writes_its_report() {
         error.iter().all(|e| e.is_finite() && *e > 0.0 && *e < 20.0),
         "{error:?}"
     );
+    // The accuracy maps: one marker (disc and outline, radius 4) per point, axes in mm, and
+    // the plate's colour bar spanning its largest |Z error|.
+    let torso_map = std::fs::read_to_string(out.join("torso_errors.svg")).unwrap();
+    assert_eq!(
+        torso_map.matches(r#"r="4""#).count(),
+        2 * received as usize,
+        "torso markers"
+    );
+    let plate_map = std::fs::read_to_string(out.join("plate_errors.svg")).unwrap();
+    let plate_points = plate["points"].as_u64().unwrap() as usize;
+    assert_eq!(plate_map.matches(r#"r="4""#).count(), 2 * plate_points);
+    for map in [&plate_map, &torso_map] {
+        assert!(map.contains("X (mm)") && map.contains("Y (mm)") && map.contains("Z error (mm)"));
+    }
+    let vectors = std::fs::read_to_string(out.join("residual_vectors.svg")).unwrap();
+    assert!(vectors.contains("plate image p3: RMS") && vectors.contains("1 px"));
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
         md.contains("error_std_mm") && md.contains("Camera (self-calibrating bundle adjustment)")
     );
+    assert!(md.contains("`plate_errors.svg` and `torso_errors.svg`"));
 }
