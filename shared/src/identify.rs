@@ -137,7 +137,12 @@ impl<T: RealField + Copy> EpipolarSegment<T> {
     fn distance_squared(&self, p: Vector2<T>) -> T {
         let mut best = T::max_value().unwrap_or_else(|| lit(f64::MAX));
         for pair in self.points.windows(2) {
-            best = best.min(point_segment_distance_squared(p, pair[0], pair[1]));
+            // A comparison, not `min` (a call to libm's `fminf` on the device); NaN is skipped
+            // as `min` skips it.
+            let d = point_segment_distance_squared(p, pair[0], pair[1]);
+            if d < best {
+                best = d;
+            }
         }
         best
     }
@@ -394,8 +399,10 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         if !inside {
             return None;
         }
-        let (c, r) = self.cell_of_clamped(p)?;
-        Some(r * self.grid_cols + c)
+        // (v + ½) / cell ≥ 0 here, so truncation is the floor (no `floorf`, `fminf`, `fmaxf`
+        // calls on the device); the far edge can round up to n.
+        let index = |v: T, n: usize| small_index((v + half) / self.cell).min(n - 1);
+        Some(index(p.y, self.grid_rows) * self.grid_cols + index(p.x, self.grid_cols))
     }
 
     /// The epipolar segments, in the projector's ray order (as stored: vertices in fixed point).
