@@ -358,7 +358,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             .map_err(ErrorCode::Frame)?;
         for c in centroids.iter() {
             let (col, row) = c.pixel::<f32>(bits);
-            out.put(&active.point(&rig, c.id, col, row))
+            out.put_point(&active.point(&rig, c.id, col, row))
                 .map_err(ErrorCode::Frame)?;
         }
         self.count_compute(start, centroids.len());

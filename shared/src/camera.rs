@@ -1,7 +1,7 @@
 //! Inner orientation: pixel ↔ photo coordinates and image refinement (principal point and
 //! Brown-Conrady lens distortion, the close-range photogrammetry convention of Fraser).
 
-use crate::{lit, Error, Result};
+use crate::{lit, sqrt, Error, Result};
 use nalgebra::{Matrix2, RealField, Vector2};
 use serde::{Deserialize, Serialize};
 
@@ -131,12 +131,12 @@ impl<T: RealField + Copy> InnerOrientation<T> {
             return Err(Error::NotFinite);
         }
         // 1e-13 relative in f64; a few ulps where the scalar cannot reach that (f32 on the device).
-        let tol =
-            lit::<T>(1e-13).max(T::default_epsilon() * lit::<T>(8.0)) * (T::one() + refined.norm());
+        let tol = lit::<T>(1e-13).max(T::default_epsilon() * lit::<T>(8.0))
+            * (T::one() + sqrt(refined.norm_squared()));
         let mut reduced = refined;
         for _ in 0..30 {
             let residual = reduced + self.distortion(reduced) - refined;
-            if residual.norm() <= tol {
+            if sqrt(residual.norm_squared()) <= tol {
                 return Ok(reduced + Vector2::new(self.cx, self.cy));
             }
             let step = self

@@ -25,7 +25,7 @@
 
 use crate::projector::ProjectorRay;
 use crate::rig::Rig;
-use crate::{lit, Error};
+use crate::{lit, sqrt, Error};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use nalgebra::{RealField, Vector2};
@@ -130,15 +130,33 @@ pub struct EpipolarSegment<T: RealField> {
 impl<T: RealField + Copy> EpipolarSegment<T> {
     /// Distance (pixels) from a point to the polyline.
     pub fn distance(&self, p: Vector2<T>) -> T {
+        sqrt(self.distance_squared(p))
+    }
+
+    /// The square of [`Self::distance`] (no square root: a search compares squares).
+    fn distance_squared(&self, p: Vector2<T>) -> T {
         let mut best = T::max_value().unwrap_or_else(|| lit(f64::MAX));
         for pair in self.points.windows(2) {
-            best = best.min(point_segment_distance(p, pair[0], pair[1]));
+            // A comparison, not `min` (a call to libm's `fminf` on the device); NaN is skipped
+            // as `min` skips it.
+            let d = point_segment_distance_squared(p, pair[0], pair[1]);
+            if d < best {
+                best = d;
+            }
         }
         best
     }
 }
 
 fn point_segment_distance<T: RealField + Copy>(p: Vector2<T>, a: Vector2<T>, b: Vector2<T>) -> T {
+    sqrt(point_segment_distance_squared(p, a, b))
+}
+
+fn point_segment_distance_squared<T: RealField + Copy>(
+    p: Vector2<T>,
+    a: Vector2<T>,
+    b: Vector2<T>,
+) -> T {
     let ab = b - a;
     let len2 = ab.norm_squared();
     let t = if len2 > T::zero() {
@@ -146,7 +164,7 @@ fn point_segment_distance<T: RealField + Copy>(p: Vector2<T>, a: Vector2<T>, b: 
     } else {
         T::zero()
     };
-    (a + ab * t - p).norm()
+    (a + ab * t - p).norm_squared()
 }
 
 /// An epipolar polyline as the identifier keeps it: (col, row) of each vertex in i16 fixed point
@@ -381,8 +399,10 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         if !inside {
             return None;
         }
-        let (c, r) = self.cell_of_clamped(p)?;
-        Some(r * self.grid_cols + c)
+        // (v + ½) / cell ≥ 0 here, so truncation is the floor (no `floorf`, `fminf`, `fmaxf`
+        // calls on the device); the far edge can round up to n.
+        let index = |v: T, n: usize| small_index((v + half) / self.cell).min(n - 1);
+        Some(index(p.y, self.grid_rows) * self.grid_cols + index(p.x, self.grid_cols))
     }
 
     /// The epipolar segments, in the projector's ray order (as stored: vertices in fixed point).
@@ -435,12 +455,14 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let Some(cell) = self.cell_of(p) else {
             return (Assignment::Unassigned, 0);
         };
+        // Squared distances (pixels²): one square root, for the ray found.
+        let limit = self.tolerance * self.tolerance;
         let mut first: Option<(T, usize)> = None;
         let mut second: Option<(T, usize)> = None;
         for &k in self.cell_entries(cell) {
             let k = usize::from(k);
-            let d = self.segment(k).distance(p);
-            if d > self.tolerance {
+            let d = self.segment(k).distance_squared(p);
+            if d > limit {
                 continue;
             }
             match first {
@@ -466,7 +488,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
             (Some((d, a)), None) => (
                 Assignment::Ray {
                     id: self.ids[a],
-                    distance: d,
+                    distance: sqrt(d),
                 },
                 a,
             ),

@@ -2,7 +2,7 @@
 //! least-squares closest approach that uses all three coordinates.
 
 use crate::projector::Ray;
-use crate::{Error, Result};
+use crate::{sqrt, Error, Result};
 use nalgebra::{RealField, Vector3};
 
 /// A reconstructed point.
@@ -26,7 +26,7 @@ fn exceeds<T: RealField + Copy>(a: T, b: T) -> bool {
 }
 
 fn min_sine<T: RealField + Copy>() -> T {
-    T::default_epsilon().sqrt()
+    sqrt(T::default_epsilon())
 }
 
 /// Eqs (8) and (9): λ and λp from the X and Z equations of eqs (5) and (6),
@@ -43,7 +43,7 @@ pub fn lambdas_eq8_eq9<T: RealField + Copy>(camera: &Ray<T>, projector: &Ray<T>)
     let (u, w) = (camera.direction.x, camera.direction.z);
     let (l, n) = (projector.direction.x, projector.direction.z);
     let denominator = n * u - w * l;
-    let scale = (u * u + w * w).sqrt() * (l * l + n * n).sqrt();
+    let scale = sqrt(u * u + w * w) * sqrt(l * l + n * n);
     if !exceeds(denominator.abs(), min_sine::<T>() * scale) {
         return Err(Error::DegenerateXZ);
     }
@@ -80,8 +80,8 @@ pub fn closest_approach<T: RealField + Copy>(
 ) -> Result<Intersection<T>> {
     let normal = camera.direction.cross(&projector.direction);
     let n2 = normal.norm_squared();
-    let scale = camera.direction.norm() * projector.direction.norm();
-    if !exceeds(n2.sqrt(), min_sine::<T>() * scale) {
+    let scale = sqrt(camera.direction.norm_squared() * projector.direction.norm_squared());
+    if !exceeds(sqrt(n2), min_sine::<T>() * scale) {
         return Err(Error::DegenerateGeometry);
     }
     let d = projector.point - camera.point;
@@ -103,7 +103,7 @@ fn average<T: RealField + Copy>(
         point: (on_camera + on_projector) * half,
         lambda,
         lambda_p,
-        miss: (on_camera - on_projector).norm(),
+        miss: sqrt((on_camera - on_projector).norm_squared()),
     }
 }
 

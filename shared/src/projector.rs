@@ -66,7 +66,7 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
                 .iter()
                 .chain(ray.offset.iter())
                 .all(|c| c.is_finite());
-            if !finite || (ray.direction.norm() - T::one()).abs() > tol {
+            if !finite || (crate::sqrt(ray.direction.norm_squared()) - T::one()).abs() > tol {
                 return Err(Error::InvalidRay(ray.id));
             }
         }

@@ -8,7 +8,7 @@ use super::fixed::{Centroid, Dot, PointResult};
 use super::frame::{unframe, WireError, CRC};
 use super::REQUEST_KINDS;
 use core::marker::PhantomData;
-use postcard::ser_flavors::{crc::CrcModifier, Cobs, Flavor, Slice};
+use postcard::ser_flavors::{Cobs, Flavor, Slice};
 use serde::{Deserialize, Serialize};
 
 /// The wire tags (variant indices) of the responses, in [`super::ResponseBody`]'s order.
@@ -242,6 +242,7 @@ impl<'o> CobsSink<'o> {
     }
 
     /// Send the current block with its code.
+    #[inline(never)]
     fn emit(&mut self) {
         self.block[0] = (self.len + 1) as u8;
         (self.out)(&self.block[..=self.len]);
@@ -252,6 +253,7 @@ impl<'o> CobsSink<'o> {
 impl Flavor for CobsSink<'_> {
     type Output = ();
 
+    #[inline]
     fn try_push(&mut self, data: u8) -> postcard::Result<()> {
         if data == 0 {
             self.emit();
@@ -276,8 +278,37 @@ impl Flavor for CobsSink<'_> {
 /// as [`super::encode_frame`] applies them, into a buffer ([`FrameWriter::new`]) or straight out
 /// ([`FrameWriter::streamed`]).
 pub struct FrameWriter<F: Flavor> {
-    out: postcard::Serializer<CrcModifier<'static, F, u32>>,
+    out: postcard::Serializer<Checksummed<F>>,
     ids: i32,
+}
+
+/// postcard's `CrcModifier` with a bulk path: a point's 10 bytes go through one CRC update
+/// (`try_extend`) instead of ten.
+struct Checksummed<F> {
+    inner: F,
+    digest: crc::Digest<'static, u32>,
+}
+
+impl<F: Flavor> Flavor for Checksummed<F> {
+    type Output = F::Output;
+
+    #[inline]
+    fn try_push(&mut self, data: u8) -> postcard::Result<()> {
+        self.digest.update(&[data]);
+        self.inner.try_push(data)
+    }
+
+    #[inline]
+    fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
+        self.digest.update(data);
+        data.iter().try_for_each(|&b| self.inner.try_push(b))
+    }
+
+    fn finalize(mut self) -> postcard::Result<F::Output> {
+        let crc = self.digest.finalize().to_le_bytes();
+        self.inner.try_extend(&crc)?;
+        self.inner.finalize()
+    }
 }
 
 impl<'b> FrameWriter<Cobs<Slice<'b>>> {
@@ -301,7 +332,10 @@ impl<F: Flavor> FrameWriter<F> {
     fn start(cobs: F, seq: u32, tag: u32) -> Result<Self, WireError> {
         let mut me = Self {
             out: postcard::Serializer {
-                output: CrcModifier::new(cobs, CRC.digest()),
+                output: Checksummed {
+                    inner: cobs,
+                    digest: CRC.digest(),
+                },
             },
             ids: 0,
         };
@@ -317,12 +351,21 @@ impl<F: Flavor> FrameWriter<F> {
             .map_err(|_| WireError::BufferFull)
     }
 
+    /// Append one result of a `Points` batch: its 10 bytes at once (those serde writes).
+    pub fn put_point(&mut self, result: &PointResult) -> Result<(), WireError> {
+        self.out
+            .output
+            .try_extend(&result.to_bytes())
+            .map_err(|_| WireError::BufferFull)
+    }
+
     /// Append one result of an `Identified` batch: its ray id delta-coded against the previous
     /// one's (see [`super::delta`]).
     pub fn put_identified(&mut self, id: u16, result: &PointResult) -> Result<(), WireError> {
         let id = i32::from(id);
         let delta = id - core::mem::replace(&mut self.ids, id);
-        self.put(&(delta, result))
+        self.put(&delta)?;
+        self.put_point(result)
     }
 
     /// Close the frame (the CRC, the last COBS block, the delimiter): the frame in the buffer,

@@ -242,7 +242,7 @@ fn written(response: &Response, buf: &mut [u8]) -> usize {
             w.put(fingerprint).unwrap();
             w.put(&(points.len() as u32)).unwrap();
             for p in points {
-                w.put(p).unwrap();
+                w.put_point(p).unwrap();
             }
             w.finish().unwrap().len()
         }
@@ -290,7 +290,7 @@ fn streamed_out(response: &Response, out: &mut dyn FnMut(&[u8])) {
             w.put(fingerprint).unwrap();
             w.put(&(points.len() as u32)).unwrap();
             for p in points {
-                w.put(p).unwrap();
+                w.put_point(p).unwrap();
             }
             w.finish().unwrap();
         }
