@@ -152,6 +152,32 @@ fn upload_to(
     Ok(fingerprint)
 }
 
+/// Check that `device` holds `system`'s calibration (its fingerprint); upload it (with
+/// `identification`) when it does not and the device is in-process or in QEMU (fresh each
+/// time) or `upload` says so, else fail saying how.
+pub fn ensure_calibration(
+    device: &mut AnyDevice,
+    link: &LinkArgs,
+    system: &Path,
+    method: Method,
+    identification: Option<IdentifyParams>,
+    upload: bool,
+) -> Result<()> {
+    let (_, fingerprint) = load_system(system)?;
+    match device.expect_calibration(fingerprint) {
+        Ok(_) => Ok(()),
+        Err(DeviceError::Fingerprint { .. }) if upload || link.port.is_none() => {
+            upload_to(device, system, method, identification).map(|_| ())
+        }
+        Err(e @ DeviceError::Fingerprint { .. }) => Err(e).context(format!(
+            "the device does not hold the calibration of {}: run `deltaz device upload` \
+             (or `deltaz scan --upload`)",
+            system.display()
+        )),
+        Err(e) => Err(e).context("asking the device for its calibration"),
+    }
+}
+
 /// `deltaz device upload system.json`.
 pub fn upload(
     args: &LinkArgs,
@@ -244,17 +270,14 @@ fn stream_group(
 pub fn stream(args: &StreamArgs) -> Result<()> {
     let mut device = connect(&args.link)?;
     if let Some(system) = &args.system {
-        let (_, fingerprint) = load_system(system)?;
-        match device.expect_calibration(fingerprint) {
-            Ok(_) => {}
-            Err(DeviceError::Fingerprint { .. }) if args.link.port.is_none() => {
-                upload_to(&mut device, system, args.method, args.identification)?;
-            }
-            Err(e @ DeviceError::Fingerprint { .. }) => return Err(e).context(
-                "the device does not hold this system's calibration: run `deltaz device upload`",
-            ),
-            Err(e) => return Err(e).context("asking the device for its calibration"),
-        }
+        ensure_calibration(
+            &mut device,
+            &args.link,
+            system,
+            args.method,
+            args.identification,
+            false,
+        )?;
     }
     let frames = match &args.source {
         StreamSource::Csv(path) => {

@@ -147,8 +147,10 @@ enum Command {
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
     },
-    /// Scan camera frames in process: measure, identify and reconstruct each frame (pipelined
-    /// across the cores); one PLY per frame in OUT, optionally a CSV of all points.
+    /// Scan camera frames: measure each frame on the host, identify and reconstruct it through
+    /// the device (--port, --qemu, in-process by default) or on the host (--host), pipelined
+    /// across the cores; one PLY per frame in OUT (or one with --one-file), optionally a CSV of
+    /// all points.
     Scan {
         /// Folder of frames (PNG, TIFF, JPEG), scanned in name order.
         frames: PathBuf,
@@ -167,12 +169,26 @@ enum Command {
         /// Output folder: OUT/<frame>.ply.
         #[arg(long)]
         out: PathBuf,
-        /// Also a CSV `frame,image,point,X,Y,Z,miss` of all frames.
+        /// One PLY OUT/scan.ply of all frames, each point with its `frame` index.
+        #[arg(long)]
+        one_file: bool,
+        /// Also a CSV `frame,image,point,X,Y,Z,miss,saturated` of all frames (saturated = 1:
+        /// the device's miss distance is at its wire limit, a lower bound).
         #[arg(long)]
         csv: Option<PathBuf>,
         /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
         #[arg(long, default_value = "closest")]
         method: cli::MethodArg,
+        /// Identify and intersect on the host (f64) instead of the device.
+        #[arg(long, conflicts_with_all = ["port", "qemu", "upload"])]
+        host: bool,
+        /// Upload the system to the device on --port when it holds another calibration.
+        #[arg(long)]
+        upload: bool,
+        #[command(flatten)]
+        device: DeviceOpts,
+        #[command(flatten)]
+        output: cli::Output,
     },
     /// Calibration steps.
     Calibrate {
@@ -229,6 +245,16 @@ enum ExportWhat {
 /// How to reach the device.
 #[derive(clap::Args)]
 struct LinkOpts {
+    #[command(flatten)]
+    device: DeviceOpts,
+    /// `info` and `stream`: print one JSON object on stdout.
+    #[arg(long, global = true)]
+    json: bool,
+}
+
+/// The device's port, or QEMU, or (neither) the firmware's logic in-process.
+#[derive(clap::Args)]
+struct DeviceOpts {
     /// Serial port of the device (see `deltaz device ports`).
     #[arg(long, global = true)]
     port: Option<String>,
@@ -243,12 +269,18 @@ struct LinkOpts {
     /// Response timeout (ms).
     #[arg(long, global = true, default_value_t = 3000)]
     timeout_ms: u64,
-    /// `info` and `stream`: print one JSON object on stdout.
-    #[arg(long, global = true)]
-    json: bool,
 }
 
 impl LinkOpts {
+    fn args(&self) -> device_cli::LinkArgs {
+        device_cli::LinkArgs {
+            json: self.json,
+            ..self.device.args()
+        }
+    }
+}
+
+impl DeviceOpts {
     fn args(&self) -> device_cli::LinkArgs {
         device_cli::LinkArgs {
             port: self.port.clone(),
@@ -261,7 +293,7 @@ impl LinkOpts {
                 }
             }),
             timeout: std::time::Duration::from_millis(self.timeout_ms),
-            json: self.json,
+            json: false,
         }
     }
 }
@@ -736,27 +768,63 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             far,
             tolerance,
             out,
+            one_file,
             csv,
             method,
+            host,
+            upload,
+            device,
+            output,
         } => {
+            let on = if host {
+                scan::ScanOn::Host
+            } else {
+                scan::ScanOn::Device {
+                    link: device.args(),
+                    upload,
+                }
+            };
             let stats = scan::scan_command(&scan::ScanArgs {
                 system,
                 frames: scan::frame_files(&frames)?,
                 depth: deltaz_shared::identify::DepthRange { near, far },
                 tolerance,
                 out: out.clone(),
+                one_file,
                 csv,
                 method: method.into(),
+                on,
+                quiet: output.quiet,
             })?;
-            println!(
-                "{} frames, {} points in {:.2} s ({:.1} frames/s, latency {:.1} ms) -> {}",
+            if stats.saturated > 0 {
+                eprintln!(
+                    "warning: {} points have the device's saturated miss distance (≥ {:.3} mm, a lower bound): flagged in the CSV's `saturated` column",
+                    stats.saturated,
+                    scan::miss_saturated_mm()
+                );
+            }
+            let text = format!(
+                "{} frames, {} points in {:.2} s ({:.1} frames/s, latency {:.1} ms), {} dots off the sensor rejected, {} saturated miss distances -> {}\n",
                 stats.frames,
                 stats.points,
                 stats.elapsed.as_secs_f64(),
                 stats.frames_per_second(),
                 stats.mean_latency.as_secs_f64() * 1e3,
+                stats.off_sensor,
+                stats.saturated,
                 out.display()
             );
+            let json = serde_json::json!({
+                "frames": stats.frames,
+                "points": stats.points,
+                "seconds": stats.elapsed.as_secs_f64(),
+                "frames_per_s": stats.frames_per_second(),
+                "mean_latency_ms": stats.mean_latency.as_secs_f64() * 1e3,
+                "off_sensor": stats.off_sensor,
+                "saturated_miss": stats.saturated,
+                "out": out,
+            });
+            output.result(&text, &json)?;
         }
         Command::Measure {
             images,

@@ -42,10 +42,30 @@ pub struct FramePoints {
     pub label: String,
     /// Measured dots.
     pub dots: usize,
+    /// The frame's identified dots and their points.
+    pub found: Identified,
+}
+
+/// What identification and intersection made of a frame's dots.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Identified {
     /// The identified dots (ray id and pixel).
     pub identified: Vec<DotObservation>,
     /// Their points, in the same order.
     pub points: Vec<ReconstructedPoint>,
+    /// For each point: its miss distance is the wire format's saturated value (a lower bound).
+    pub saturated: Vec<bool>,
+    /// Dots rejected for lying off the calibration's sensor.
+    pub off_sensor: usize,
+    /// Dots identified with a ray but without a point (degenerate or out of range).
+    pub failed: usize,
+}
+
+impl Identified {
+    /// Points whose miss distance is saturated.
+    pub fn saturated_count(&self) -> usize {
+        self.saturated.iter().filter(|&&s| s).count()
+    }
 }
 
 /// Frames per second and latency (from the start of reading a frame to its points).
@@ -55,6 +75,10 @@ pub struct ScanStats {
     pub frames: usize,
     /// Points reconstructed.
     pub points: usize,
+    /// Points whose miss distance is saturated (device only).
+    pub saturated: usize,
+    /// Dots rejected off the sensor.
+    pub off_sensor: usize,
     /// Wall time of the whole scan.
     pub elapsed: Duration,
     /// Mean latency per frame.
@@ -68,16 +92,103 @@ impl ScanStats {
     }
 }
 
+/// Identification and intersection on the host (f64): dots off the sensor are rejected, the
+/// rest identified with `identifier` and intersected with `method`.
+pub fn on_host<'a>(
+    rig: &'a SystemRig,
+    identifier: &'a HostIdentifier,
+    method: Method,
+) -> impl FnMut(&[(f64, f64)]) -> Result<Identified> + 'a {
+    let mut assigned = Vec::new();
+    move |dots| {
+        let on = on_sensor(rig, dots);
+        assigned.clear();
+        assigned.resize(on.len(), Assignment::Unassigned);
+        identifier.identify_frame(&on, &mut assigned);
+        let identified: Vec<DotObservation> = on
+            .iter()
+            .zip(&assigned)
+            .filter_map(|(&(col, row), a)| match a {
+                Assignment::Ray { id, .. } => Some(DotObservation { id: *id, col, row }),
+                _ => None,
+            })
+            .collect();
+        let points = reconstruct(rig, &identified, method, None, None)?;
+        Ok(Identified {
+            saturated: vec![false; points.len()],
+            failed: identified.len() - points.len(),
+            identified,
+            points,
+            off_sensor: dots.len() - on.len(),
+        })
+    }
+}
+
+/// The dots on the calibration's sensor (within half a pixel of its edge pixels' centres).
+fn on_sensor(rig: &SystemRig, dots: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    dots.iter()
+        .copied()
+        .filter(|&(c, r)| rig.grid().contains(c, r))
+        .collect()
+}
+
+/// The device's miss distance at saturation (mm).
+pub fn miss_saturated_mm() -> f64 {
+    use deltaz_shared::protocol::fixed::{MISS_SATURATED, MISS_UNITS_PER_MM};
+    f64::from(MISS_SATURATED) / MISS_UNITS_PER_MM
+}
+
+/// Identification and intersection by the device (Identify requests, f32 on the device): it
+/// must hold `rig`'s calibration with identification parameters. Dots off `rig`'s sensor are
+/// rejected before they are sent (the device would reject them too). At most `MAX_BATCH` dots
+/// a frame.
+pub fn on_device<'a, T: crate::link::Transport>(
+    rig: &'a SystemRig,
+    device: &'a mut crate::link::Device<T>,
+) -> impl FnMut(&[(f64, f64)]) -> Result<Identified> + 'a {
+    use deltaz_shared::protocol::{PointStatus, MAX_BATCH};
+    move |dots| {
+        let on = on_sensor(rig, dots);
+        if on.len() > MAX_BATCH {
+            bail!(
+                "{} dots, the device identifies at most {MAX_BATCH} per frame",
+                on.len()
+            );
+        }
+        let mut out = Identified {
+            off_sensor: dots.len() - on.len(),
+            ..Identified::default()
+        };
+        for (&(col, row), (id, r)) in on.iter().zip(device.identify(&on)?) {
+            match r {
+                Ok(w) => {
+                    out.identified.push(DotObservation { id, col, row });
+                    out.saturated.push(w.miss >= miss_saturated_mm());
+                    out.points.push(ReconstructedPoint {
+                        id,
+                        point: w.point,
+                        miss: w.miss,
+                        sigma: None,
+                    });
+                }
+                Err(PointStatus::OffSensor) => out.off_sensor += 1,
+                Err(PointStatus::Unassigned | PointStatus::Ambiguous | PointStatus::Conflict) => {}
+                Err(_) => out.failed += 1,
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// Scan `count` frames: `load(i)` gives frame i's label and image. The image must have the
-/// calibration's size; `sink` receives each frame's points in order (and may stop the scan with
-/// an error).
+/// calibration's size; `identify` makes points of its dots ([`on_host`], [`on_device`]);
+/// `sink` receives each frame's points in order (and may stop the scan with an error).
 pub fn scan(
     rig: &SystemRig,
-    identifier: &HostIdentifier,
     params: &MeasureParams,
-    method: Method,
     count: usize,
     load: impl Fn(usize) -> Result<(String, LoadedImage)> + Send,
+    mut identify: impl FnMut(&[(f64, f64)]) -> Result<Identified>,
     mut sink: impl FnMut(&FramePoints) -> Result<()>,
 ) -> Result<ScanStats> {
     let sensor = (rig.grid().width, rig.grid().height);
@@ -86,6 +197,8 @@ pub fn scan(
     let mut stats = ScanStats {
         frames: 0,
         points: 0,
+        saturated: 0,
+        off_sensor: 0,
         elapsed: Duration::ZERO,
         mean_latency: Duration::ZERO,
     };
@@ -116,32 +229,20 @@ pub fn scan(
                 }
             }
         });
-        let mut assigned = Vec::new();
         for (frame, began, measured) in receive {
             let (label, dots) = measured?;
-            assigned.clear();
-            assigned.resize(dots.len(), Assignment::Unassigned);
-            identifier.identify_frame(&dots, &mut assigned);
-            let identified: Vec<DotObservation> = dots
-                .iter()
-                .zip(&assigned)
-                .filter_map(|(&(col, row), a)| match a {
-                    Assignment::Ray { id, .. } => Some(DotObservation { id: *id, col, row }),
-                    _ => None,
-                })
-                .collect();
-            let points = reconstruct(rig, &identified, method, None, None)
-                .with_context(|| format!("frame {label}"))?;
+            let found = identify(&dots).with_context(|| format!("frame {label}"))?;
             let out = FramePoints {
                 frame,
                 label,
                 dots: dots.len(),
-                identified,
-                points,
+                found,
             };
             sink(&out)?;
             stats.frames += 1;
-            stats.points += out.points.len();
+            stats.points += out.found.points.len();
+            stats.saturated += out.found.saturated_count();
+            stats.off_sensor += out.found.off_sensor;
             latency += began.elapsed();
         }
         Ok(())
@@ -166,10 +267,9 @@ fn view<P: image::Primitive>(
 /// Scan image files: frame label = file stem.
 pub fn scan_files(
     rig: &SystemRig,
-    identifier: &HostIdentifier,
     params: &MeasureParams,
-    method: Method,
     files: &[PathBuf],
+    identify: impl FnMut(&[(f64, f64)]) -> Result<Identified>,
     sink: impl FnMut(&FramePoints) -> Result<()>,
 ) -> Result<ScanStats> {
     let load = |i: usize| -> Result<(String, LoadedImage)> {
@@ -181,11 +281,12 @@ pub fn scan_files(
             .to_owned();
         Ok((label, load_image(path)?))
     };
-    scan(rig, identifier, params, method, files.len(), load, sink)
+    scan(rig, params, files.len(), load, identify, sink)
 }
 
 /// Scan timings (`deltaz bench-measure`): 60 frames of the paper rig's dots rendered on planes
-/// 1690-1780 mm away, tilted up to 0.1 rad (768 × 512, radius 4 px, blur 1 px, noise 2 DN), scanned in process.
+/// 1690-1780 mm away, tilted up to 0.1 rad (768 × 512, radius 4 px, blur 1 px, noise 2 DN),
+/// scanned in process on the host and through the in-process device.
 pub fn bench() -> Result<String> {
     use crate::simulate::objects::{object_dots, object_frame, Object};
     use crate::simulate::{images::true_rig, Scenario};
@@ -215,24 +316,67 @@ pub fn bench() -> Result<String> {
             LoadedImage::Eight(frames[i % frames.len()].clone()),
         ))
     };
-    let stats = scan(
+    let params = MeasureParams::default();
+    let method = Method::ClosestApproach;
+    let host = scan(
         &rig,
-        &identifier,
-        &MeasureParams::default(),
-        Method::ClosestApproach,
+        &params,
         count,
         load,
+        on_host(&rig, &identifier, method),
         |_| Ok(()),
     )?;
-    Ok(format!(
-        "scan (in process, 768 x 512, {} dots per frame): {} frames in {:.2} s, {:.1} frames/s, latency {:.1} ms, {} points\n",
-        stats.points / stats.frames.max(1),
-        stats.frames,
-        stats.elapsed.as_secs_f64(),
-        stats.frames_per_second(),
-        stats.mean_latency.as_secs_f64() * 1e3,
-        stats.points
-    ))
+    let mut device = crate::link::Device::in_process();
+    device.upload_identifying(&rig, 1, method, Some(identify_params(depth, 1.0, 16.0)))?;
+    let through = scan(
+        &rig,
+        &params,
+        count,
+        load,
+        on_device(&rig, &mut device),
+        |_| Ok(()),
+    )?;
+    let line = |what: &str, stats: &ScanStats| {
+        format!(
+            "scan ({what}, 768 x 512, {} dots per frame): {} frames in {:.2} s, {:.1} frames/s, latency {:.1} ms, {} points\n",
+            stats.points / stats.frames.max(1),
+            stats.frames,
+            stats.elapsed.as_secs_f64(),
+            stats.frames_per_second(),
+            stats.mean_latency.as_secs_f64() * 1e3,
+            stats.points
+        )
+    };
+    Ok(line("in process, host", &host) + &line("through the in-process device", &through))
+}
+
+/// The device's identification parameters for a depth range, tolerance and lookup cell (px).
+pub fn identify_params(
+    depth: deltaz_shared::identify::DepthRange<f64>,
+    tolerance: f64,
+    cell: f64,
+) -> deltaz_shared::protocol::calibration::IdentifyParams {
+    deltaz_shared::protocol::calibration::IdentifyParams {
+        near: depth.near as f32,
+        far: depth.far as f32,
+        tolerance: tolerance as f32,
+        cell: cell as f32,
+    }
+}
+
+/// Where `deltaz scan` identifies and intersects.
+#[derive(Debug, Clone)]
+pub enum ScanOn {
+    /// On the host, in f64.
+    Host,
+    /// Through the device (`--port`, `--qemu` or in-process); `upload`: upload the system when
+    /// the device holds another calibration.
+    Device {
+        /// The link.
+        link: crate::device_cli::LinkArgs,
+        /// Upload the system to a device on `--port` that holds another calibration.
+        upload: bool,
+    },
 }
 
 /// Arguments of `deltaz scan`.
@@ -246,62 +390,123 @@ pub struct ScanArgs {
     pub depth: deltaz_shared::identify::DepthRange<f64>,
     /// Identification tolerance (px).
     pub tolerance: f64,
-    /// Output folder: one PLY per frame.
+    /// Output folder: one PLY per frame, or `scan.ply` with a `frame` property.
     pub out: PathBuf,
-    /// CSV `frame,image,point,X,Y,Z,miss` of all frames.
+    /// One PLY `OUT/scan.ply` of all frames with the `frame` property.
+    pub one_file: bool,
+    /// CSV `frame,image,point,X,Y,Z,miss,saturated` of all frames.
     pub csv: Option<PathBuf>,
     /// Intersection method.
     pub method: Method,
+    /// Host or device.
+    pub on: ScanOn,
+    /// No progress bar.
+    pub quiet: bool,
 }
 
-/// `deltaz scan`: one PLY per frame (`OUT/<label>.ply`), the CSV written when every frame
-/// succeeded, a progress bar with frames/s.
+/// `deltaz scan`: one PLY per frame (`OUT/<label>.ply`) or one with a `frame` property
+/// (`OUT/scan.ply`), the CSV and the single PLY written when every frame succeeded, a progress
+/// bar with frames/s on stderr.
 pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
-    use crate::ply::{write_ply, Encoding};
+    use crate::io::atomic::write_atomic;
+    use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
     use std::io::Write;
-    let (_, rig) = crate::system::SystemFile::load(&args.system)?;
+    let (file, rig) = crate::system::SystemFile::load(&args.system)?;
+    let fingerprint = file.fingerprint_u64()?;
     let cell = if rig.grid().width > 2000 { 32.0 } else { 16.0 };
-    let identifier = host_identifier(&rig, args.depth, args.tolerance, cell)
-        .with_context(|| args.system.display().to_string())?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
     let mut csv = match &args.csv {
         Some(path) => {
             let (pending, mut writer) = crate::reconstruct_stream::Pending::new(path, "csv")?;
-            writeln!(writer, "frame,image,point,X,Y,Z,miss")?;
+            writeln!(writer, "frame,image,point,X,Y,Z,miss,saturated")?;
             Some((pending, writer))
         }
         None => None,
     };
-    let bar = indicatif::ProgressBar::new(args.frames.len() as u64);
+    let bar = if args.quiet {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(args.frames.len() as u64)
+    };
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec} {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    let info = CloudInfo {
+        frame: RIG_FRAME.to_owned(),
+        fingerprint: Some(format!("{fingerprint:016x}")),
+        frames: None,
+    };
+    let (mut all, mut all_frames) = (Vec::new(), Vec::new());
     let sink = |f: &FramePoints| -> Result<()> {
-        write_ply(
-            &args.out.join(format!("{}.ply", f.label)),
-            &f.points,
-            Encoding::BinaryLittleEndian,
-        )?;
+        let points = &f.found.points;
+        if args.one_file {
+            all.extend_from_slice(points);
+            all_frames.extend(std::iter::repeat_n(f.frame as u32, points.len()));
+        } else {
+            let bytes = encode_with(points, Encoding::BinaryLittleEndian, &info);
+            write_atomic(&args.out.join(format!("{}.ply", f.label)), &bytes)?;
+        }
         if let Some((pending, writer)) = &mut csv {
-            for p in &f.points {
+            for (p, saturated) in points.iter().zip(&f.found.saturated) {
                 let x = p.point;
                 writeln!(
                     writer,
-                    "{},{},{},{},{},{},{}",
-                    f.frame, f.label, p.id, x.x, x.y, x.z, p.miss
+                    "{},{},{},{},{},{},{},{}",
+                    f.frame,
+                    f.label,
+                    p.id,
+                    x.x,
+                    x.y,
+                    x.z,
+                    p.miss,
+                    u8::from(*saturated)
                 )
                 .with_context(|| format!("{}: cannot write", pending.target.display()))?;
             }
         }
         bar.inc(1);
-        bar.set_message(format!("{} of {} dots identified", f.points.len(), f.dots));
+        bar.set_message(format!("{} of {} dots identified", points.len(), f.dots));
         Ok(())
     };
     let params = MeasureParams::default();
-    let stats = scan_files(&rig, &identifier, &params, args.method, &args.frames, sink)?;
-    bar.finish();
+    let stats = match &args.on {
+        ScanOn::Host => {
+            let identifier = host_identifier(&rig, args.depth, args.tolerance, cell)
+                .with_context(|| args.system.display().to_string())?;
+            let identify = on_host(&rig, &identifier, args.method);
+            scan_files(&rig, &params, &args.frames, identify, sink)?
+        }
+        ScanOn::Device { link, upload } => {
+            let mut device = crate::device_cli::connect(link)?;
+            let identification = identify_params(args.depth, args.tolerance, cell);
+            crate::device_cli::ensure_calibration(
+                &mut device,
+                link,
+                &args.system,
+                args.method,
+                Some(identification),
+                *upload,
+            )?;
+            scan_files(
+                &rig,
+                &params,
+                &args.frames,
+                on_device(&rig, &mut device),
+                sink,
+            )?
+        }
+    };
+    bar.finish_and_clear();
+    if args.one_file {
+        let info = CloudInfo {
+            frames: Some(all_frames),
+            ..info
+        };
+        let bytes = encode_with(&all, Encoding::BinaryLittleEndian, &info);
+        write_atomic(&args.out.join("scan.ply"), &bytes)?;
+    }
     if let Some((pending, writer)) = csv {
         pending.commit(writer)?;
     }

@@ -6,7 +6,7 @@
 use deltaz_host::measure::{host_identifier, LoadedImage, MeasureParams};
 use deltaz_host::projector_calibration::DotObservation;
 use deltaz_host::reconstruct::covariance;
-use deltaz_host::scan::{scan, FramePoints};
+use deltaz_host::scan::{on_device, on_host, scan, FramePoints};
 use deltaz_host::simulate::objects::{object_dots, object_frame, Object, ObjectDot};
 use deltaz_host::simulate::{images::true_rig, Scenario};
 use deltaz_host::system::SystemRig;
@@ -50,11 +50,10 @@ pub(crate) fn scan_frames(
     let load = |i: usize| Ok((format!("f{i}"), LoadedImage::Eight(frames[i].0.clone())));
     let stats = scan(
         rig,
-        &identifier,
         &MeasureParams::default(),
-        Method::ClosestApproach,
         frames.len(),
         load,
+        on_host(rig, &identifier, Method::ClosestApproach),
         |f| {
             scanned.push(f.clone());
             Ok(())
@@ -68,15 +67,16 @@ pub(crate) fn scan_frames(
         .map(|(f, (_, truth))| {
             assert_eq!(f.dots, truth.len(), "frame {}: every dot measured", f.label);
             assert!(
-                f.points.len() as f64 >= truth.len() as f64 * identified,
+                f.found.points.len() as f64 >= truth.len() as f64 * identified,
                 "frame {}: {} of {} identified",
                 f.label,
-                f.points.len(),
+                f.found.points.len(),
                 truth.len()
             );
-            f.identified
+            f.found
+                .identified
                 .iter()
-                .zip(&f.points)
+                .zip(&f.found.points)
                 .map(|(dot, p)| {
                     let (_, (c, r), x) = truth.iter().find(|t| t.0 == dot.id).expect("a true ray");
                     let px = (dot.col - c, dot.row - r);
@@ -219,6 +219,7 @@ fn scan_command_files() {
         "clouds",
         "--csv",
         "all.csv",
+        "--host",
     ];
     let out = deltaz(&scan_args);
     assert!(
@@ -247,6 +248,57 @@ fn scan_command_files() {
             "{label}"
         );
     }
+    // Through the in-process device, one PLY with each point's frame index, the summary as
+    // JSON: the same rays per frame as the host's CSV, none saturated, none off the sensor.
+    let mut device_args: Vec<&str> = scan_args[..scan_args.len() - 1].to_vec();
+    device_args[11] = "one.csv";
+    device_args.extend(["--one-file", "--json", "--quiet"]);
+    let out = deltaz(&device_args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["frames"], 2);
+    assert_eq!(
+        (
+            summary["saturated_miss"].as_u64(),
+            summary["off_sensor"].as_u64()
+        ),
+        (Some(0), Some(0))
+    );
+    let labels: Vec<String> = deltaz_host::ply::read_points(&d.join("clouds/scan.ply"))
+        .unwrap()
+        .into_iter()
+        .map(|(label, _)| label)
+        .collect();
+    let rows: Vec<String> = std::fs::read_to_string(d.join("one.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f[7], "0", "{l}");
+            format!("{}:{}", f[0], f[2])
+        })
+        .collect();
+    assert_eq!(labels, rows);
+    let host_rows: Vec<String> = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            format!("{}:{}", f[0], f[2])
+        })
+        .collect();
+    let same = rows.iter().filter(|r| host_rows.contains(r)).count();
+    assert!(
+        same * 100 >= host_rows.len() * 99,
+        "{same} of {}",
+        host_rows.len()
+    );
+    assert_eq!(summary["points"].as_u64(), Some(rows.len() as u64));
     // A frame of another size.
     std::fs::remove_file(d.join("all.csv")).unwrap();
     image::GrayImage::new(640, 480)
@@ -260,4 +312,204 @@ fn scan_command_files() {
         "{err}"
     );
     assert!(!d.join("all.csv").exists());
+}
+
+/// A frame's identification and intersection ([`on_host`], [`on_device`]).
+type Identify<'a> = dyn FnMut(&[(f64, f64)]) -> anyhow::Result<deltaz_host::scan::Identified> + 'a;
+
+/// Centroids as the wire carries them (1/2^bits px), exactly representable in f32 and f64.
+fn quantised(dots: &[(f64, f64)], bits: u8) -> Vec<(f64, f64)> {
+    dots.iter()
+        .map(|&(c, r)| {
+            deltaz_shared::protocol::Dot::from_pixel(c, r, bits)
+                .unwrap()
+                .pixel::<f64>(bits)
+        })
+        .collect()
+}
+
+/// The rig's identification for `depth`, on the host and uploaded to an in-process device (with
+/// the device's centroid bits).
+fn host_and_device(
+    rig: &deltaz_host::system::SystemRig,
+    depth: DepthRange<f64>,
+    cell: f64,
+) -> (
+    Box<deltaz_host::measure::HostIdentifier>,
+    deltaz_host::link::Device<deltaz_host::link::InProcess>,
+    u8,
+) {
+    let identifier = host_identifier(rig, depth, 1.0, cell).unwrap();
+    let mut device = deltaz_host::link::Device::in_process();
+    let params = deltaz_host::scan::identify_params(depth, 1.0, cell);
+    let summary = device
+        .upload_identifying(rig, 11, Method::ClosestApproach, Some(params))
+        .unwrap();
+    (identifier, device, summary.centroid_bits)
+}
+
+/// Scanning through the in-process device (f32, Identify requests) gives the host scan's (f64)
+/// points on the same wire-quantised centroids: the same rays for all but a few dots at the
+/// tolerance's edge, each point within 1 µm (f32 rounding at 1.7 m: ulp 0.12 µm, a few
+/// roundings through eqs 6-8, plus the wire's 0.24 µm step), the miss distance within the
+/// wire's 3.9 µm step; on the paper rig and on the desk rig (2448 × 2048, 660-740 mm: the
+/// device's lookup holds no wider range at that size).
+#[test]
+fn device_scan_equals_host_scan() {
+    let cases = [
+        (
+            Scenario::paper(),
+            1600.0,
+            1860.0,
+            16.0,
+            [(1700.0, 0.1), (1760.0, -0.08)],
+        ),
+        (
+            Scenario::desk(),
+            660.0,
+            740.0,
+            64.0,
+            [(680.0, 0.1), (720.0, -0.1)],
+        ),
+    ];
+    for (scenario, near, far, cell, planes) in cases {
+        let rig = true_rig(&scenario);
+        let images: Vec<_> = planes
+            .iter()
+            .enumerate()
+            .map(|(k, &(d, t))| frame(&rig, &Object::Plane { depth: d, tilt: t }, 70 + k as u64).0)
+            .collect();
+        let (identifier, mut device, bits) = host_and_device(&rig, DepthRange { near, far }, cell);
+        let run = |identify: &mut Identify| {
+            let mut out: Vec<FramePoints> = Vec::new();
+            let load = |i: usize| Ok((format!("f{i}"), LoadedImage::Eight(images[i].clone())));
+            scan(
+                &rig,
+                &MeasureParams::default(),
+                images.len(),
+                load,
+                |d: &[(f64, f64)]| identify(&quantised(d, bits)),
+                |f| {
+                    out.push(f.clone());
+                    Ok(())
+                },
+            )
+            .unwrap();
+            out
+        };
+        let mut host = on_host(&rig, &identifier, Method::ClosestApproach);
+        let host = run(&mut host);
+        let mut dev = on_device(&rig, &mut device);
+        let dev = run(&mut dev);
+        let (mut common, mut worst, mut worst_miss) = (0, 0.0f64, 0.0f64);
+        for (h, d) in host.iter().zip(&dev) {
+            assert_eq!((h.dots, h.found.off_sensor), (d.dots, d.found.off_sensor));
+            assert!(
+                h.found.points.len() > 300,
+                "{} points",
+                h.found.points.len()
+            );
+            let mut same = 0;
+            for (dot, p) in h.found.identified.iter().zip(&h.found.points) {
+                let Some(k) = d.found.identified.iter().position(|x| x == dot) else {
+                    continue;
+                };
+                same += 1;
+                worst = worst.max((d.found.points[k].point - p.point).norm());
+                worst_miss = worst_miss.max((d.found.points[k].miss - p.miss).abs());
+                assert!(!d.found.saturated[k]);
+            }
+            common += same;
+            let differ = h.found.points.len() + d.found.points.len() - 2 * same;
+            assert!(
+                differ * 200 <= h.found.points.len(),
+                "{}: {differ} dots identified differently of {}",
+                h.label,
+                h.found.points.len()
+            );
+        }
+        println!(
+            "{} x {}: {common} points in common, device - host ≤ {:.3} µm, miss ≤ {:.2} µm",
+            rig.grid().width,
+            rig.grid().height,
+            worst * 1e3,
+            worst_miss * 1e3
+        );
+        assert!(worst < 1e-3, "device vs host {worst} mm");
+        assert!(worst_miss <= 0.5 / 256.0 + 1e-4, "miss {worst_miss} mm");
+    }
+}
+
+/// Dots moved off their epipolar lines get miss distances either side of the wire's limit
+/// (0.934 mm): the device flags exactly those the host (f64) puts at or beyond it, and gives
+/// the limit as their miss; two dots off the sensor are rejected and counted on both sides.
+#[test]
+fn saturated_miss_flagged_and_off_sensor_dots_rejected() {
+    let rig = true_rig(&Scenario::paper());
+    let (identifier, mut device, bits) = host_and_device(
+        &rig,
+        DepthRange {
+            near: 1680.0,
+            far: 1800.0,
+        },
+        16.0,
+    );
+    let mut dots: Vec<(f64, f64)> = object_dots(
+        &rig,
+        &Object::Plane {
+            depth: 1740.0,
+            tilt: 0.0,
+        },
+    )
+    .iter()
+    .enumerate()
+    .map(|(k, (_, (c, r), _))| {
+        let shift = 0.15 * (k % 6) as f64;
+        if k % 2 == 0 {
+            (c + shift, *r)
+        } else {
+            (*c, r + shift)
+        }
+    })
+    .collect();
+    dots.extend([(768.2, 100.0), (100.0, 512.0)]);
+    let dots = quantised(&dots, bits);
+    let limit = deltaz_host::scan::miss_saturated_mm();
+    let host = on_host(&rig, &identifier, Method::ClosestApproach)(&dots).unwrap();
+    let dev = on_device(&rig, &mut device)(&dots).unwrap();
+    assert_eq!((host.off_sensor, dev.off_sensor), (2, 2));
+    assert_eq!(host.saturated_count(), 0, "the host's miss never saturates");
+    let (mut flagged, mut clear) = (0, 0);
+    for ((dot, p), &saturated) in dev.identified.iter().zip(&dev.points).zip(&dev.saturated) {
+        let truth = deltaz_host::reconstruct::reconstruct(
+            &rig,
+            &[*dot],
+            Method::ClosestApproach,
+            None,
+            None,
+        )
+        .unwrap()[0]
+            .miss;
+        if (truth - limit).abs() < 0.01 {
+            continue;
+        }
+        assert_eq!(
+            saturated,
+            truth >= limit,
+            "ray {}: host miss {truth} mm",
+            dot.id
+        );
+        if saturated {
+            flagged += 1;
+            assert_eq!(p.miss, limit);
+        } else {
+            clear += 1;
+            assert!((p.miss - truth).abs() < 0.01, "{} vs {truth}", p.miss);
+        }
+    }
+    println!("saturated miss: {flagged} flagged, {clear} below the limit");
+    assert!(
+        flagged > 10 && clear > 10,
+        "{flagged} flagged, {clear} clear"
+    );
 }
