@@ -393,6 +393,22 @@ mod tests {
         assert_eq!(store.save(&blob(9, 8161)), Err(StoreError::TooLarge));
     }
 
+    /// The slot header's bytes are pinned: magic "DZC1", generation, length, the blob's CRC-32
+    /// and the header's own CRC-32, little endian, then erased bytes up to the blob.
+    #[test]
+    fn slot_header_is_golden() {
+        let mut store = Store::new(Flash::new(), SLOTS).unwrap();
+        store.save(b"deltaz").unwrap();
+        // The CRCs are CRC-32/ISO-HDLC (zlib's crc32) of b"deltaz" and of the first 16 bytes.
+        let golden: [u8; HEADER + 6] = [
+            0x44, 0x5a, 0x43, 0x31, 1, 0, 0, 0, 6, 0, 0, 0, 0x21, 0x5e, 0x4b, 0x9d, 0xb2, 0x79,
+            0x00, 0xa6, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff,
+            b'd', b'e', b'l', b't', b'a', b'z',
+        ];
+        let stored = &store.flash().bytes()[..HEADER + 6];
+        assert_eq!(stored, golden, "{stored:02x?}");
+    }
+
     #[test]
     fn rejects_bad_layouts() {
         let overlap = [(0, 8192), (4096, 12288)];

@@ -1,3 +1,4 @@
 //! The shared crate's integration tests, one binary: each module is one former test file.
+mod blob_golden;
 mod protocol_golden;
 mod rig;
