@@ -125,6 +125,21 @@ fn edited(name: &str, from: &str, to: &str) -> String {
     text.replacen(from, to, 1)
 }
 
+/// The fixture's system.json with its rays repeated to 900 (new ids), more than a device holds.
+fn oversized_system() -> String {
+    use deltaz_host::system::SystemFile;
+    let text = std::fs::read_to_string(fixture().join("system.json")).unwrap();
+    let mut content = serde_json::from_str::<SystemFile>(&text).unwrap().content;
+    let rays = content.projector.rays.clone();
+    content.projector.rays = (0..900)
+        .map(|k| deltaz_host::system::SystemRay {
+            id: k as u16,
+            ..rays[k % rays.len()].clone()
+        })
+        .collect();
+    serde_json::to_string(&SystemFile::new(content).unwrap()).unwrap()
+}
+
 const SCENARIO: &str = include_str!("../../scenarios/desk_rig.toml");
 
 fn cases() -> Vec<Case> {
@@ -228,6 +243,8 @@ fn cases() -> Vec<Case> {
         case("bench --targets 1", &["--targets", "1 is not in 4..=100000"]),
         // device
         case("device upload none.json", &["none.json", "No such file"]),
+        case("device upload big.json", &["big.json: 900 projector rays", "capacity of 512"])
+            .with("big.json", oversized_system()),
         case("device upload system.json --near 2000 --far 1500", &["--near 2000 mm must be less than --far 1500 mm"]),
         case("device upload system.json --near 500 --far 1500 --identify-cell 0", &["--identify-cell", "0 is not a positive"]),
         case("device stream --system system.json --simulate 4000000000 --out s.ply", &["--simulate", "4000000000"]),
