@@ -98,7 +98,7 @@ fn copy_dir(from: &Path, to: &Path) {
 
 /// One bad input: the files written over the fixture, the command line, what the error must say.
 struct Case {
-    files: Vec<(&'static str, String)>,
+    files: Vec<(&'static str, Vec<u8>)>,
     args: Vec<String>,
     expect: Vec<&'static str>,
 }
@@ -112,8 +112,8 @@ fn case(args: &str, expect: &[&'static str]) -> Case {
 }
 
 impl Case {
-    fn with(mut self, name: &'static str, text: impl Into<String>) -> Self {
-        self.files.push((name, text.into()));
+    fn with(mut self, name: &'static str, bytes: impl Into<Vec<u8>>) -> Self {
+        self.files.push((name, bytes.into()));
         self
     }
 }
@@ -138,6 +138,16 @@ fn oversized_system() -> String {
         })
         .collect();
     serde_json::to_string(&SystemFile::new(content).unwrap()).unwrap()
+}
+
+/// A 4 × 3 greyscale TIFF with 32-bit floating-point samples.
+fn float_tiff() -> Vec<u8> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    tiff::encoder::TiffEncoder::new(&mut bytes)
+        .unwrap()
+        .write_image::<tiff::encoder::colortype::Gray32Float>(4, 3, &[0.5f32; 12])
+        .unwrap();
+    bytes.into_inner()
 }
 
 const SCENARIO: &str = include_str!("../../scenarios/desk_rig.toml");
@@ -236,6 +246,8 @@ fn cases() -> Vec<Case> {
         // measure
         case("measure none.png --out m.csv", &["none.png", "No such file"]),
         case("measure fake.png --out m.csv", &["fake.png", "not a PNG, TIFF or JPEG image"]).with("fake.png", "text"),
+        case("measure float.tif --out m.csv", &["float.tif", "sample format is not supported"])
+            .with("float.tif", float_tiff()),
         case("measure fake.png --out m.csv --tolerance -1", &["--tolerance", "-1 is not a positive"]),
         // bench, bench-measure
         case("bench-measure --repeats 0", &["--repeats", "0 is not in 1..=100"]),
