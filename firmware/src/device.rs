@@ -25,7 +25,7 @@ use serde::Serialize;
 /// The firmware version reported by `Info` (the crate version).
 pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
 /// The most projector rays a calibration may hold.
-pub const MAX_RAYS: usize = 512;
+pub const MAX_RAYS: usize = deltaz_shared::protocol::MAX_RAYS;
 /// The longest calibration blob (bytes): [`MAX_RAYS`] rays of at most 28 bytes plus the header.
 /// A board's store slots hold at least this much (the blob is never in RAM).
 pub const MAX_CALIBRATION: usize = 16 * 1024;

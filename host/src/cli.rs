@@ -244,7 +244,9 @@ pub fn dot_observations(path: &Path, obs: &[Observation]) -> Result<Vec<(String,
 
 /// `deltaz reconstruct`: streamed ([`crate::reconstruct_stream`]), nothing written on failure.
 pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
+    let progress = output.progress(format!("reconstructing {}", args.obs.display()));
     let s = crate::reconstruct_stream::reconstruct_stream(args)?;
+    progress.finish_and_clear();
     output.result(
         &format!(
             "{} points from {} images, miss distance RMS {:.3} mm, in the {} (mm) -> {}\n",
@@ -312,6 +314,7 @@ pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
         .collect();
     check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
+    let progress = output.progress(format!("calibrating the projector from {}", obs.display()));
     let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
     let poses: Vec<_> = resected
         .results
@@ -322,6 +325,7 @@ pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
     let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
     let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
         .map_err(|e| in_file(&e))?;
+    progress.finish_and_clear();
     let warnings = Warnings {
         left_out_images: resected.left_out,
         single_plane_rays: projector.single_plane.clone(),
@@ -430,6 +434,11 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
         None => Vec::new(),
     };
     let options = CalibrationOptions::default();
+    let progress = Output::default().progress(format!(
+        "calibrating the system from {} and {}",
+        args.camera_obs.display(),
+        args.obs.display()
+    ));
     let problem = build_problem(
         &args.camera_obs,
         &grid,
@@ -457,6 +466,7 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
         image_sigma_px: 0.5,
     })
     .map_err(|e| in_file(&e))?;
+    progress.finish_and_clear();
     let warnings = Warnings {
         left_out_images: resected.left_out,
         single_plane_rays: if args.noncentral {

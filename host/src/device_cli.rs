@@ -11,7 +11,7 @@ use crate::reconstruct::ReconstructedPoint;
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::protocol::calibration::IdentifyParams;
-use deltaz_shared::protocol::{PointStatus, MAX_BATCH};
+use deltaz_shared::protocol::{PointStatus, MAX_BATCH, MAX_RAYS};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -123,9 +123,17 @@ pub fn info(args: &LinkArgs) -> Result<()> {
     Ok(())
 }
 
-/// Load `system.json`: the rig and its fingerprint.
+/// Load `system.json`: the rig and its fingerprint; refused when it has more rays than a
+/// device holds ([`MAX_RAYS`]).
 pub fn load_system(path: &Path) -> Result<(SystemRig, u64)> {
     let (file, rig) = SystemFile::load(path)?;
+    let rays = file.content.projector.rays.len();
+    if rays > MAX_RAYS {
+        bail!(
+            "{}: {rays} projector rays, more than the device's capacity of {MAX_RAYS}",
+            path.display()
+        );
+    }
     let fingerprint = file.fingerprint_u64()?;
     Ok((rig, fingerprint))
 }
@@ -135,12 +143,12 @@ pub fn load_system(path: &Path) -> Result<(SystemRig, u64)> {
 fn upload_to(
     device: &mut AnyDevice,
     system: &Path,
+    (rig, fingerprint): &(SystemRig, u64),
     method: Method,
     identification: Option<IdentifyParams>,
 ) -> Result<u64> {
-    let (rig, fingerprint) = load_system(system)?;
     let s = device
-        .upload_identifying(&rig, fingerprint, method, identification)
+        .upload_identifying(rig, *fingerprint, method, identification)
         .with_context(|| format!("uploading {}", system.display()))?;
     eprintln!(
         "uploaded {} ({} rays): fingerprint {:016x} read back, generation {}",
@@ -149,7 +157,7 @@ fn upload_to(
         s.fingerprint,
         s.generation
     );
-    Ok(fingerprint)
+    Ok(*fingerprint)
 }
 
 /// Check that `device` holds `system`'s calibration (its fingerprint); upload it (with
@@ -163,11 +171,11 @@ pub fn ensure_calibration(
     identification: Option<IdentifyParams>,
     upload: bool,
 ) -> Result<()> {
-    let (_, fingerprint) = load_system(system)?;
-    match device.expect_calibration(fingerprint) {
+    let loaded = load_system(system)?;
+    match device.expect_calibration(loaded.1) {
         Ok(_) => Ok(()),
         Err(DeviceError::Fingerprint { .. }) if upload || link.port.is_none() => {
-            upload_to(device, system, method, identification).map(|_| ())
+            upload_to(device, system, &loaded, method, identification).map(|_| ())
         }
         Err(e @ DeviceError::Fingerprint { .. }) => Err(e).context(format!(
             "the device does not hold the calibration of {}: run `deltaz device upload` \
@@ -185,8 +193,9 @@ pub fn upload(
     method: Method,
     identification: Option<IdentifyParams>,
 ) -> Result<()> {
+    let loaded = load_system(system)?;
     let mut device = connect(args)?;
-    upload_to(&mut device, system, method, identification)?;
+    upload_to(&mut device, system, &loaded, method, identification)?;
     if args.port.is_none() {
         eprintln!(
             "note: the in-process and QEMU devices live only as long as this command; \
@@ -268,6 +277,10 @@ fn stream_group(
 
 /// `deltaz device stream`: frames in, points out, with a live points/s figure.
 pub fn stream(args: &StreamArgs) -> Result<()> {
+    // The system is checked (its rays against the device's capacity) before connecting.
+    if let Some(system) = &args.system {
+        load_system(system)?;
+    }
     let mut device = connect(&args.link)?;
     if let Some(system) = &args.system {
         ensure_calibration(

@@ -672,9 +672,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     },
                     ..Default::default()
                 };
-                let n = simulate::images::write_images(&scenario, seed, &spec, &out)?;
-                println!("{n} images -> {}", out.join("images").display());
+                let progress = cli::Output::default()
+                    .progress(format!("rendering the images of {}", scenario.name));
+                let images = simulate::images::write_images(&scenario, seed, &spec, &out)?;
                 let n = simulate::objects::write_objects(&scenario, seed, &out)?;
+                progress.finish_and_clear();
+                println!("{images} images -> {}", out.join("images").display());
                 println!(
                     "{n} test object frames -> {}",
                     out.join("images/objects").display()
@@ -691,7 +694,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             );
         }
         Command::Demo { out, seed } => {
+            let progress = cli::Output::default().progress(format!(
+                "running the demo (simulation, calibrations, reconstructions) -> {}",
+                out.display()
+            ));
             let report = demo::run(&out, seed)?;
+            progress.finish_and_clear();
             println!(
                 "torso error std {} mm (floor {} mm), flat plate vs truth {} mm -> {}",
                 report["error_std_mm"],
@@ -757,9 +765,24 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             output.result(&poses.table(), &serde_json::to_value(&poses)?)?;
         }
         Command::BenchMeasure { repeats } => {
-            print!("{}", measure::bench::run(repeats.into()));
-            print!("{}", scan::identification());
-            print!("{}", scan::bench()?);
+            type Step<'a> = Box<dyn Fn() -> anyhow::Result<String> + 'a>;
+            let steps: [(&str, Step); 3] = [
+                (
+                    "image measurement",
+                    Box::new(|| Ok(measure::bench::run(repeats.into()))),
+                ),
+                (
+                    "dot identification",
+                    Box::new(|| Ok(scan::identification())),
+                ),
+                ("the scan pipeline", Box::new(scan::bench)),
+            ];
+            for (what, step) in steps {
+                let progress = cli::Output::default().progress(format!("benchmarking {what}"));
+                let text = step()?;
+                progress.finish_and_clear();
+                print!("{text}");
+            }
         }
         Command::Scan {
             frames,

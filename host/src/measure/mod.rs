@@ -565,9 +565,13 @@ pub fn load_image(path: &Path) -> Result<LoadedImage> {
     let mut reader = image::ImageReader::open(path)
         .with_context(|| format!("{}: cannot open", path.display()))?;
     reader.set_format(format);
-    let decoded = reader
-        .decode()
-        .map_err(|e| anyhow::anyhow!("{}: corrupt or truncated image: {e}", path.display()))?;
+    let decoded = reader.decode().map_err(|e| match e {
+        image::ImageError::Unsupported(e) => anyhow::anyhow!(
+            "{}: the image's sample format is not supported ({e}): use 8- or 16-bit integer samples",
+            path.display()
+        ),
+        e => anyhow::anyhow!("{}: corrupt or truncated image: {e}", path.display()),
+    })?;
     if decoded.width() == 0 || decoded.height() == 0 {
         bail!("{}: the image has no pixels", path.display());
     }

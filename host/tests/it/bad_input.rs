@@ -98,7 +98,7 @@ fn copy_dir(from: &Path, to: &Path) {
 
 /// One bad input: the files written over the fixture, the command line, what the error must say.
 struct Case {
-    files: Vec<(&'static str, String)>,
+    files: Vec<(&'static str, Vec<u8>)>,
     args: Vec<String>,
     expect: Vec<&'static str>,
 }
@@ -112,8 +112,8 @@ fn case(args: &str, expect: &[&'static str]) -> Case {
 }
 
 impl Case {
-    fn with(mut self, name: &'static str, text: impl Into<String>) -> Self {
-        self.files.push((name, text.into()));
+    fn with(mut self, name: &'static str, bytes: impl Into<Vec<u8>>) -> Self {
+        self.files.push((name, bytes.into()));
         self
     }
 }
@@ -123,6 +123,31 @@ fn edited(name: &str, from: &str, to: &str) -> String {
     let text = std::fs::read_to_string(fixture().join(name)).unwrap();
     assert!(text.contains(from), "{name} lacks {from:?}");
     text.replacen(from, to, 1)
+}
+
+/// The fixture's system.json with its rays repeated to 900 (new ids), more than a device holds.
+fn oversized_system() -> String {
+    use deltaz_host::system::SystemFile;
+    let text = std::fs::read_to_string(fixture().join("system.json")).unwrap();
+    let mut content = serde_json::from_str::<SystemFile>(&text).unwrap().content;
+    let rays = content.projector.rays.clone();
+    content.projector.rays = (0..900)
+        .map(|k| deltaz_host::system::SystemRay {
+            id: k as u16,
+            ..rays[k % rays.len()].clone()
+        })
+        .collect();
+    serde_json::to_string(&SystemFile::new(content).unwrap()).unwrap()
+}
+
+/// A 4 × 3 greyscale TIFF with 32-bit floating-point samples.
+fn float_tiff() -> Vec<u8> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    tiff::encoder::TiffEncoder::new(&mut bytes)
+        .unwrap()
+        .write_image::<tiff::encoder::colortype::Gray32Float>(4, 3, &[0.5f32; 12])
+        .unwrap();
+    bytes.into_inner()
 }
 
 const SCENARIO: &str = include_str!("../../scenarios/desk_rig.toml");
@@ -221,6 +246,8 @@ fn cases() -> Vec<Case> {
         // measure
         case("measure none.png --out m.csv", &["none.png", "No such file"]),
         case("measure fake.png --out m.csv", &["fake.png", "not a PNG, TIFF or JPEG image"]).with("fake.png", "text"),
+        case("measure float.tif --out m.csv", &["float.tif", "sample format is not supported"])
+            .with("float.tif", float_tiff()),
         case("measure fake.png --out m.csv --tolerance -1", &["--tolerance", "-1 is not a positive"]),
         // bench, bench-measure
         case("bench-measure --repeats 0", &["--repeats", "0 is not in 1..=100"]),
@@ -228,6 +255,8 @@ fn cases() -> Vec<Case> {
         case("bench --targets 1", &["--targets", "1 is not in 4..=100000"]),
         // device
         case("device upload none.json", &["none.json", "No such file"]),
+        case("device upload big.json", &["big.json: 900 projector rays", "capacity of 512"])
+            .with("big.json", oversized_system()),
         case("device upload system.json --near 2000 --far 1500", &["--near 2000 mm must be less than --far 1500 mm"]),
         case("device upload system.json --near 500 --far 1500 --identify-cell 0", &["--identify-cell", "0 is not a positive"]),
         case("device stream --system system.json --simulate 4000000000 --out s.ply", &["--simulate", "4000000000"]),

@@ -50,6 +50,9 @@ use serde::{Deserialize, Serialize};
 pub const PROTOCOL_VERSION: u16 = 3;
 /// The most centroids in one `Compute` request.
 pub const MAX_BATCH: usize = 512;
+/// The most projector rays a device's calibration holds (its [`DeviceInfo::ray_capacity`]),
+/// known to the host before anything is sent.
+pub const MAX_RAYS: usize = 512;
 /// The most bytes in one upload chunk.
 pub const CHUNK_SIZE: usize = 1024;
 /// The longest encoded frame either end sends or accepts, delimiter included: a full
