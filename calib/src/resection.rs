@@ -396,19 +396,11 @@ fn dlt_start(
     uv: &[Vector2<f64>],
     world: &[Vector3<f64>],
 ) -> Result<(Matrix3<f64>, Vector3<f64>), ResectionError> {
-    let n = world.len();
-    let mut a = DMatrix::zeros(2 * n, 12);
-    for (i, (x, o)) in world.iter().zip(uv).enumerate() {
+    let rows = world.iter().map(|x| {
         let xn = (x - s.centroid) / s.scale;
-        let h = [xn.x, xn.y, xn.z, 1.0];
-        for k in 0..4 {
-            a[(2 * i, k)] = h[k];
-            a[(2 * i, 8 + k)] = -o.x * h[k];
-            a[(2 * i + 1, 4 + k)] = h[k];
-            a[(2 * i + 1, 8 + k)] = -o.y * h[k];
-        }
-    }
-    let p = null_vector(a)?;
+        [xn.x, xn.y, xn.z, 1.0]
+    });
+    let p = null_vector(projective_design(rows, uv))?;
     let m = Matrix3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]);
     let p4 = Vector3::new(p[3], p[7], p[11]);
     // x_cam ∝ M X̃ + p4 with X̃ = (X − c)/s: the centre is where M X̃ + p4 = 0.
@@ -417,26 +409,36 @@ fn dlt_start(
     Ok((r, s.centroid + xn0 * s.scale))
 }
 
+/// The design matrix of a projective map P (3 × K, row-major) from homogeneous points h to image
+/// points (u, v): per point the rows [hᵀ 0 −u hᵀ] and [0 hᵀ −v hᵀ], so that A vec(P) = 0.
+fn projective_design<const K: usize>(
+    points: impl Iterator<Item = [f64; K]>,
+    uv: &[Vector2<f64>],
+) -> DMatrix<f64> {
+    let mut a = DMatrix::zeros(2 * uv.len(), 3 * K);
+    for (i, (h, o)) in points.zip(uv).enumerate() {
+        for k in 0..K {
+            a[(2 * i, k)] = h[k];
+            a[(2 * i, 2 * K + k)] = -o.x * h[k];
+            a[(2 * i + 1, K + k)] = h[k];
+            a[(2 * i + 1, 2 * K + k)] = -o.y * h[k];
+        }
+    }
+    a
+}
+
 /// Plane homography: x_cam ∝ [q1 q2 τ] (a, b, 1) for plane coordinates (a, b).
 fn homography_start(
     s: &Shape,
     uv: &[Vector2<f64>],
     world: &[Vector3<f64>],
 ) -> Result<(Matrix3<f64>, Vector3<f64>), ResectionError> {
-    let n = world.len();
     let (e1, e2) = (s.axes.column(0), s.axes.column(1));
-    let mut a = DMatrix::zeros(2 * n, 9);
-    for (i, (x, o)) in world.iter().zip(uv).enumerate() {
+    let rows = world.iter().map(|x| {
         let d = (x - s.centroid) / s.scale;
-        let h = [d.dot(&e1), d.dot(&e2), 1.0];
-        for k in 0..3 {
-            a[(2 * i, k)] = h[k];
-            a[(2 * i, 6 + k)] = -o.x * h[k];
-            a[(2 * i + 1, 3 + k)] = h[k];
-            a[(2 * i + 1, 6 + k)] = -o.y * h[k];
-        }
-    }
-    let h = null_vector(a)?;
+        [d.dot(&e1), d.dot(&e2), 1.0]
+    });
+    let h = null_vector(projective_design(rows, uv))?;
     let hm = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
     let (q1, q2, tau) = (hm.column(0), hm.column(1), hm.column(2));
     let mut lambda = (q1.norm() + q2.norm()) / 2.0;
