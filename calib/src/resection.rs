@@ -101,6 +101,18 @@ pub struct Sighting {
     pub sigma: f64,
 }
 
+/// Pixel and control pairs as sightings of exact control (σ 0).
+fn exact(points: &[(Vector2<f64>, Vector3<f64>)]) -> Vec<Sighting> {
+    points
+        .iter()
+        .map(|&(pixel, xyz)| Sighting {
+            pixel,
+            xyz,
+            sigma: 0.0,
+        })
+        .collect()
+}
+
 /// Resects one image: `points` are (observed pixel (col, row), world coordinates) pairs, the
 /// control taken as exact.
 pub fn resect(
@@ -108,14 +120,7 @@ pub fn resect(
     inner: &InnerOrientation<f64>,
     points: &[(Vector2<f64>, Vector3<f64>)],
 ) -> Result<ResectionResult, ResectionError> {
-    let sightings: Vec<Sighting> = points
-        .iter()
-        .map(|(pixel, xyz)| Sighting {
-            pixel: *pixel,
-            xyz: *xyz,
-            sigma: 0.0,
-        })
-        .collect();
+    let sightings = exact(points);
     best_pose(grid, inner, &sightings, 1.0)
 }
 
@@ -179,14 +184,7 @@ pub fn resect_from(
             needed: 4,
         });
     }
-    let sightings: Vec<Sighting> = points
-        .iter()
-        .map(|(pixel, xyz)| Sighting {
-            pixel: *pixel,
-            xyz: *xyz,
-            sigma: 0.0,
-        })
-        .collect();
+    let sightings = exact(points);
     let obs = Observed::new(grid, &sightings, 1.0);
     refine(grid, inner, &obs, start).map(|r| r.1)
 }
