@@ -17,7 +17,7 @@ use crate::simulate::Simulation;
 use crate::system::{RayCovariances, SystemContent, SystemRig};
 use anyhow::{Context, Result};
 use deltaz_calib::system_adjustment::{
-    adjust_system, CameraPrior, Frame, SystemAdjustment, SystemInput,
+    adjust_system, CameraPrior, CameraSource, Frame, SystemAdjustment, SystemInput,
 };
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
@@ -243,9 +243,8 @@ fn rms_sigma(variances: &[Vector3<f64>]) -> Vector3<f64> {
     (variances.iter().sum::<Vector3<f64>>() / n).map(f64::sqrt)
 }
 
-/// The camera calibrated on a simulation's target field (bundle adjustment, no snooping): its
-/// inner orientation and the prior (free parameters and their covariance) for the system.
-pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, CameraPrior)> {
+/// The camera calibrated on a simulation's target field (bundle adjustment, no snooping).
+pub fn bundle_camera(sim: &Simulation) -> Result<crate::bundle::Calibration> {
     let options = crate::bundle::CalibrationOptions {
         snooping: false,
         ..Default::default()
@@ -259,7 +258,13 @@ pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, Came
         &sim.camera_control,
         &options,
     )?;
-    let cal = crate::bundle::calibrate(problem, &options)?;
+    Ok(crate::bundle::calibrate(problem, &options)?)
+}
+
+/// [`bundle_camera`]'s inner orientation and the prior (free parameters and their covariance)
+/// for the system.
+pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, CameraPrior)> {
+    let cal = bundle_camera(sim)?;
     Ok((
         cal.problem.inner,
         crate::camera_calibration::camera_prior(&cal),
@@ -268,11 +273,34 @@ pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, Came
 
 /// The whole-system adjustment on a simulation: every plate image but `held_out` resected with
 /// `inner` (those that cannot be are left out and returned), then adjusted with the camera
-/// `prior` (None: inner orientation fixed).
+/// `prior` (None: inner orientation fixed): sequentially.
 pub fn adjust_simulation(
     sim: &Simulation,
     inner: &InnerOrientation<f64>,
     prior: Option<CameraPrior>,
+    noncentral: bool,
+    held_out: Option<usize>,
+) -> Result<(SystemAdjustment, Vec<crate::plates::LeftOut>)> {
+    let camera = prior.map_or(CameraSource::Fixed, CameraSource::Prior);
+    adjust_with(sim, inner, camera, noncentral, held_out)
+}
+
+/// As [`adjust_simulation`], jointly: the field images of `camera` (the bundle's calibration,
+/// its values the start) in the same adjustment as the plates.
+pub fn adjust_simulation_joint(
+    sim: &Simulation,
+    camera: &crate::bundle::Calibration,
+    noncentral: bool,
+    held_out: Option<usize>,
+) -> Result<(SystemAdjustment, Vec<crate::plates::LeftOut>)> {
+    let source = CameraSource::Field(&camera.problem);
+    adjust_with(sim, &camera.problem.inner, source, noncentral, held_out)
+}
+
+fn adjust_with(
+    sim: &Simulation,
+    inner: &InnerOrientation<f64>,
+    camera: CameraSource,
     noncentral: bool,
     held_out: Option<usize>,
 ) -> Result<(SystemAdjustment, Vec<crate::plates::LeftOut>)> {
@@ -290,7 +318,7 @@ pub fn adjust_simulation(
     let input = SystemInput {
         grid,
         inner: *inner,
-        camera: prior,
+        camera,
         control: &sim.plate_control,
         plates,
         noncentral,

@@ -3,7 +3,7 @@
 //! (argument parsing stays in `main.rs`).
 
 use crate::bundle::{calibrate, CalibrationOptions};
-use crate::camera_calibration::{build_problem, camera_prior};
+use crate::camera_calibration::build_problem;
 use crate::compare::{assess, match_points};
 use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
@@ -16,7 +16,7 @@ use crate::projector_calibration::{
 use crate::system::SystemContent;
 use crate::system::{SystemFile, Warnings};
 use anyhow::{bail, Result};
-use deltaz_calib::system_adjustment::{adjust_system, Frame, SystemInput};
+use deltaz_calib::system_adjustment::{adjust_system, CameraSource, Frame, SystemInput};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 
@@ -420,10 +420,11 @@ pub struct SystemArgs {
     pub strict: bool,
 }
 
-/// `deltaz calibrate system`: the camera by bundle adjustment, then the plate images, the
-/// control, the projector and the camera (its calibration as a prior with its covariance) in
-/// one whole-system adjustment; system.json in the camera system with the covariance a point's
-/// σ needs. Images that cannot be resected and rays seen on one plate are listed (in the file
+/// `deltaz calibrate system`: the camera by bundle adjustment and the plate images by resection
+/// (the starts), then the camera's inner orientation, the field and plate images, both controls
+/// and the projector in one whole-system adjustment with a variance component per group (field
+/// targets, plate targets, dots); system.json in the camera system with the covariance a
+/// point's σ needs. Images that cannot be resected and rays seen on one plate are listed (in the file
 /// too); `--strict` makes them errors. Nothing is written if anything fails.
 pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
     let start = read_camera(&args.init)?;
@@ -459,7 +460,7 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
     let adjustment = adjust_system(&SystemInput {
         grid,
         inner,
-        camera: Some(camera_prior(&camera)),
+        camera: CameraSource::Field(&camera.problem),
         control: &control,
         plates,
         noncentral: args.noncentral,
@@ -483,11 +484,12 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
     write_atomic(&args.out, file.to_json()?.as_bytes())?;
     let m = &adjustment.model;
     println!(
-        "system: centre {:.3?} mm (σ {:.3?}) in the camera system, {} rays; σ0 targets {:.3} px, \
-         dots {:.3} px; fingerprint {} -> {}",
+        "system: centre {:.3?} mm (σ {:.3?}) in the camera system, {} rays; σ0 field targets \
+         {:.3} px, plate targets {:.3} px, dots {:.3} px; fingerprint {} -> {}",
         m.centre.as_slice(),
         m.centre_sigma().as_slice(),
         m.rays.len(),
+        adjustment.sigma_field_px.unwrap_or(f64::NAN),
         adjustment.sigma_targets_px,
         m.sigma_dots_px,
         file.fingerprint,

@@ -122,6 +122,10 @@ pub struct SystemCovariance {
     pub dot_sigma_px: f64,
     /// The image noise of the plate targets, estimated (px).
     pub target_sigma_px: f64,
+    /// The image noise of the field targets, estimated (px), when the camera's field images
+    /// were in the same adjustment.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub field_sigma_px: Option<f64>,
     /// The plate frame offered as the points' frame: the camera's pose in it, its parameters
     /// (κ, φ, ω, X0, Y0, Z0) the core's last six.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -327,6 +331,7 @@ impl SystemContent {
                     core: rows(&m.core_covariance),
                     dot_sigma_px: m.sigma_dots_px,
                     target_sigma_px: adjustment.sigma_targets_px,
+                    field_sigma_px: adjustment.sigma_field_px,
                     datum: m.datum.as_ref().map(|d| StoredDatum {
                         image: d.image.clone(),
                         pose: d.pose.into(),

@@ -1,9 +1,14 @@
 //! The whole-system adjustment on two geometries, the paper's rig (five plates and a sixth held
-//! out) and the desk rig ([`Scenario::desk`]): Monte Carlo over 50 seeds of the stated σ against
-//! the truth, the variance components, the datum, incomplete data.
+//! out) and the desk rig ([`Scenario::desk`]): Monte Carlo over 50 seeds or more of the stated σ
+//! against the truth, with the camera calibrated first (sequential) and with its field images in
+//! the same adjustment (joint), the variance components, the datum, incomplete data.
 
-use deltaz_calib::system_adjustment::Frame;
-use deltaz_host::accuracy::{adjust_simulation, calibrate_camera, system_against_truth};
+use deltaz_calib::system_adjustment::{Frame, SystemAdjustment};
+use deltaz_host::accuracy::{
+    adjust_simulation, adjust_simulation_joint, bundle_camera, calibrate_camera,
+    system_against_truth,
+};
+use deltaz_host::camera_calibration::camera_prior;
 use deltaz_host::simulate::{simulate, Scenario};
 use deltaz_shared::rig::Method;
 use nalgebra::Vector3;
@@ -20,16 +25,60 @@ struct Honesty {
     scatter_over_floor: Vector3<f64>,
     /// Mean over seeds of the unseen plate's mean error, in standard errors per axis.
     datum: Vector3<f64>,
-    /// Mean estimated σ of the targets and the dots / the simulated noise, and the worst seed's
-    /// dots.
+    /// Mean estimated σ of the plate targets, the dots and (joint) the field targets / the
+    /// simulated noise.
     sigma0: [f64; 3],
+    /// The worst seed's |σ0 / noise − 1| of the dots and (joint) the field targets.
+    worst: f64,
     /// Rays on one plate and images left out, per seed (the first seed's).
     single_plane: usize,
     /// RMS over seeds of (adjusted inner parameter error / σ): f, cx, cy, k1 (printed).
     inner: [f64; 4],
 }
 
-fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> Honesty {
+/// How the camera enters the adjustment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Camera {
+    /// Calibrated first; its calibration a prior.
+    Sequential,
+    /// Its field images in the same adjustment.
+    Joint,
+}
+
+/// Joint against sequential on the same data, in units of the joint σ: RMS and largest |Δ/σ|
+/// over seeds of the projector centre (per axis) and of f, cx, cy, k1.
+#[derive(Debug, Default)]
+struct Agreement {
+    centre2: Vector3<f64>,
+    inner2: [f64; 4],
+    worst: f64,
+}
+
+impl Agreement {
+    fn add(&mut self, joint: &SystemAdjustment, sequential: &SystemAdjustment) {
+        let (j, s) = (&joint.model, &sequential.model);
+        let dc = (j.centre - s.centre).component_div(&j.centre_sigma());
+        self.centre2 += dc.map(|v| v * v);
+        self.worst = self.worst.max(dc.amax());
+        let (ij, is) = (
+            deltaz_calib::residual::inner_to_array(&j.inner),
+            deltaz_calib::residual::inner_to_array(&s.inner),
+        );
+        for (slot, &k) in j.inner_free.iter().enumerate().take(4) {
+            let z = (ij[k] - is[k]) / j.core_covariance[(slot, slot)].sqrt();
+            self.inner2[slot] += z * z;
+            self.worst = self.worst.max(z.abs());
+        }
+    }
+}
+
+fn monte_carlo(
+    scenario: &Scenario,
+    held_out: usize,
+    seeds: u64,
+    camera: Camera,
+) -> (Honesty, Agreement) {
+    let mut agreement = Agreement::default();
     let truth_px = scenario.noise.image_sigma_px;
     let (mut centre, mut points, mut err2, mut floor2) = (
         Vector3::zeros(),
@@ -40,16 +89,29 @@ fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> Honesty {
     let mut scatter2 = Vector3::zeros();
     let mut n_points = 0usize;
     let mut means = Vec::new();
-    let (mut targets, mut dots, mut worst) = (0.0, 0.0, 0.0_f64);
+    let (mut targets, mut dots, mut field, mut worst) = (0.0, 0.0, 0.0, 0.0_f64);
     let mut single_plane = 0;
     let mut inner2 = [0.0; 4];
     let truth_inner = deltaz_calib::residual::inner_to_array(&scenario.camera.inner.into());
     for seed in 0..seeds {
         let sim = simulate(scenario, 1000 + seed);
-        let (inner, prior) = calibrate_camera(&sim).unwrap();
-        let (adj, left_out) =
-            adjust_simulation(&sim, &inner, Some(prior), false, Some(held_out)).unwrap();
+        let cal = bundle_camera(&sim).unwrap();
+        let prior = Some(camera_prior(&cal));
+        let (sequential, left_out) =
+            adjust_simulation(&sim, &cal.problem.inner, prior, false, Some(held_out)).unwrap();
         assert!(left_out.is_empty(), "seed {seed}: {left_out:?}");
+        let adj = match camera {
+            Camera::Sequential => sequential,
+            Camera::Joint => {
+                let (joint, _) =
+                    adjust_simulation_joint(&sim, &cal, false, Some(held_out)).unwrap();
+                agreement.add(&joint, &sequential);
+                let f = joint.sigma_field_px.unwrap() / truth_px;
+                field += f;
+                worst = worst.max((f - 1.0).abs());
+                joint
+            }
+        };
         if seed == 0 {
             single_plane = adj.single_plane.len();
         }
@@ -85,6 +147,8 @@ fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> Honesty {
         worst = worst.max((adj.model.sigma_dots_px / truth_px - 1.0).abs());
     }
     let n = seeds as f64;
+    agreement.centre2 = (agreement.centre2 / n).map(f64::sqrt);
+    agreement.inner2 = agreement.inner2.map(|v| (v / n).sqrt());
     let grand = means.iter().sum::<Vector3<f64>>() / n;
     let spread = (means
         .iter()
@@ -92,23 +156,25 @@ fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> Honesty {
         .sum::<Vector3<f64>>()
         / (n - 1.0))
         .map(f64::sqrt);
-    Honesty {
+    let honesty = Honesty {
         centre: (centre / n).map(f64::sqrt),
         points: (points / n_points as f64).map(f64::sqrt),
         error_over_floor: err2.component_div(&floor2).map(f64::sqrt),
         scatter_over_floor: scatter2.component_div(&floor2).map(f64::sqrt),
         datum: grand.component_div(&(spread / n.sqrt())),
-        sigma0: [targets / n, dots / n, worst],
+        sigma0: [targets / n, dots / n, field / n],
+        worst,
         single_plane,
         inner: inner2.map(|v| (v / n).sqrt()),
-    }
+    };
+    (honesty, agreement)
 }
 
 fn check(name: &str, h: &Honesty) {
     println!(
         "{name}: RMS(e/σ) centre {:.2?}, points {:.2?}; error/floor {:.2?}, scatter/floor \
-         {:.2?}; datum {:.2?} SE; σ0/noise targets {:.3} dots {:.3} (worst dots {:.3}); {} rays on \
-         one plate; inner f, cx, cy, k1 {:.2?}",
+         {:.2?}; datum {:.2?} SE; σ0/noise plate targets {:.3} dots {:.3} field targets {:.3} \
+         (worst seed {:.3}); {} rays on one plate; inner f, cx, cy, k1 {:.2?}",
         h.centre.as_slice(),
         h.points.as_slice(),
         h.error_over_floor.as_slice(),
@@ -117,6 +183,7 @@ fn check(name: &str, h: &Honesty) {
         h.sigma0[0],
         h.sigma0[1],
         h.sigma0[2],
+        h.worst,
         h.single_plane,
         h.inner
     );
@@ -137,7 +204,25 @@ fn check(name: &str, h: &Honesty) {
     }
     assert!((h.sigma0[0] - 1.0).abs() < 0.1, "{name} targets σ0");
     assert!((h.sigma0[1] - 1.0).abs() < 0.1, "{name} dots σ0");
-    assert!(h.sigma0[2] < 0.1, "{name} worst dots σ0");
+    assert!(h.worst < 0.1, "{name} worst dots σ0");
+}
+
+/// The joint adjustment's checks: those of [`check`], the field targets' σ0 within 10 %, and the
+/// joint solution within its σ of the sequential one (the same data, the camera's information
+/// used once more): RMS of Δ/σ below 0.5 per quantity, no seed beyond 1.5σ.
+fn check_joint(name: &str, h: &Honesty, a: &Agreement) {
+    check(name, h);
+    println!(
+        "{name}: joint − sequential, RMS(Δ/σ) centre {:.2?}, f, cx, cy, k1 {:.2?}, worst {:.2}",
+        a.centre2.as_slice(),
+        a.inner2,
+        a.worst
+    );
+    assert!((h.sigma0[2] - 1.0).abs() < 0.1, "{name} field targets σ0");
+    for v in a.centre2.iter().chain(&a.inner2) {
+        assert!(*v < 0.5, "{name}: joint against sequential {v}");
+    }
+    assert!(a.worst < 1.5, "{name}: worst {}", a.worst);
 }
 
 /// The desk rig, 50 seeds at 0.5 px, a calibrated camera: the stated σ of the projector centre
@@ -147,9 +232,37 @@ fn check(name: &str, h: &Honesty) {
 /// edge rays that fall on one plate are kept (central model).
 #[test]
 fn desk_rig_states_honest_sigma() {
-    let h = monte_carlo(&Scenario::desk(), Scenario::DESK_HELD_OUT, 50);
+    let (h, _) = monte_carlo(
+        &Scenario::desk(),
+        Scenario::DESK_HELD_OUT,
+        50,
+        Camera::Sequential,
+    );
     check("desk", &h);
     assert!(h.single_plane > 0);
+}
+
+/// The desk rig, 50 seeds, the camera's field images and the plates in one adjustment
+/// (`calibrate system`): honest as the sequential adjustment, σ0 of all three groups (field
+/// targets, plate targets, dots) within 10 % of the simulated noise, and within σ of the
+/// sequential solution.
+#[test]
+fn desk_rig_joint_adjustment_states_honest_sigma() {
+    let (h, a) = monte_carlo(
+        &Scenario::desk(),
+        Scenario::DESK_HELD_OUT,
+        50,
+        Camera::Joint,
+    );
+    check_joint("desk joint", &h, &a);
+    assert!(h.single_plane > 0);
+}
+
+/// The paper's rig jointly, 100 seeds (as the sequential test, for cy): as for the desk rig.
+#[test]
+fn paper_rig_joint_adjustment_states_honest_sigma() {
+    let (h, a) = monte_carlo(&Scenario::paper_five_plates(), 5, 100, Camera::Joint);
+    check_joint("paper joint", &h, &a);
 }
 
 /// The paper's rig (five plates, a sixth held out), 100 seeds: as for the desk rig. The Y errors
@@ -158,7 +271,7 @@ fn desk_rig_states_honest_sigma() {
 /// 100 seeds keep that sampling scatter near ±0.07.
 #[test]
 fn paper_rig_states_honest_sigma() {
-    let h = monte_carlo(&Scenario::paper_five_plates(), 5, 100);
+    let (h, _) = monte_carlo(&Scenario::paper_five_plates(), 5, 100, Camera::Sequential);
     check("paper", &h);
 }
 
@@ -278,8 +391,9 @@ mod cli {
         deltaz(&args, dir)
     }
 
-    /// `calibrate system` on the desk rig's files: the rays on one plate are listed on stderr and
-    /// in system.json, which holds the covariance; `reconstruct` then gives every point a σ
+    /// `calibrate system` on the desk rig's files, field and plate images in one adjustment: the
+    /// rays on one plate are listed on stderr and in system.json, which holds the covariance and
+    /// the σ0 of field targets, plate targets and dots; `reconstruct` then gives every point a σ
     /// (camera + projector + image noise). With `--strict` the same data is an error and
     /// nothing is written.
     #[test]
@@ -308,11 +422,16 @@ mod cli {
         assert!(!single.is_empty());
         let cov = file.content.projector.covariance.as_ref().unwrap();
         assert_eq!(cov.inner_free, ["f", "cx", "cy", "k1"]);
-        assert!(
-            (cov.dot_sigma_px / 0.5 - 1.0).abs() < 0.1,
-            "{}",
-            cov.dot_sigma_px
-        );
+        // One adjustment of field and plate images: σ0 of each of the three groups.
+        for sigma in [
+            cov.dot_sigma_px,
+            cov.target_sigma_px,
+            cov.field_sigma_px.unwrap(),
+        ] {
+            assert!((sigma / 0.5 - 1.0).abs() < 0.1, "{sigma}");
+        }
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(stdout.contains("σ0 field targets"), "{stdout}");
         assert!(file.content.model().unwrap().is_some());
         // The camera system is the frame: the camera sits at the origin.
         assert_eq!(file.content.camera.pose.centre, [0.0; 3]);

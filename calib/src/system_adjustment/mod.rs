@@ -12,13 +12,16 @@
 //! ```
 //!
 //! and its dot in image k is the camera's image of the line's intersection with that plane.
-//! Observations and weights: plate targets and dots in the image (σ per group, estimated),
-//! control coordinates (their σ), and the camera's inner orientation as a prior with the
-//! covariance of the camera calibration (so `calibrate camera` then `calibrate projector` is one
-//! adjustment, sequentially). Unknowns: [free inner | poses | P | control] (the reduced system)
-//! and per ray 2 (central) or 4 (non-central) parameters, eliminated by the Schur complement as
-//! in the bundle. Variance components: σ_g² ← σ_g² vᵀ_g P_g v_g / r_g, r_g the group's sum of
-//! redundancy numbers, until they settle; the covariances then use the estimated σ.
+//! Observations and weights: plate targets, dots and field targets in the image (σ per group,
+//! estimated), control coordinates of the plate and the field (their σ), and where the camera
+//! comes from ([`CameraSource`]): jointly from its field images in the same adjustment
+//! (`calibrate system`), or as a prior with the covariance of a previous camera calibration (so
+//! `calibrate camera` then `calibrate projector` is one adjustment, sequentially). Unknowns:
+//! [free inner | plate poses | field poses | P | plate control] (the reduced system), per ray 2
+//! (central) or 4 (non-central) parameters and per field target its 3 coordinates, both
+//! eliminated by the Schur complement as in the bundle ([`elimination`]). Variance components:
+//! σ_g² ← σ_g² vᵀ_g P_g v_g / r_g, r_g the group's sum of redundancy numbers, until they settle;
+//! the covariances then use the estimated σ.
 //!
 //! The plate frame as an option: the control frame as the plate stood in one image (the datum
 //! image: the one whose camera position the adjustment determines best), with that image's pose
@@ -28,15 +31,19 @@
 //! Incomplete data: a ray seen on one plate has no redundancy but the central model still
 //! determines it (the centre and one point); the non-central model cannot, and leaves it out.
 
+mod elimination;
+
+use crate::bundle::problem::Problem;
 use crate::input::ControlPoint;
 use crate::projector_calibration::{centre_by_delta_z, DotObservation, PlanePoint};
-use crate::residual::{image_residual, inner_from_array, inner_to_array, INNER};
+use crate::residual::{image_residual, inner_from_array, inner_to_array, INNER, POSE};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::intersection::{closest_approach, intersect_paper};
 use deltaz_shared::projector::Ray;
 use deltaz_shared::rig::Method;
-use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
+use elimination::{covariance, reduce, Kind, Linear, Local, Normal, GROUPS};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
 use std::collections::BTreeMap;
 
 /// One plate image: its resected pose (the start), the targets it sees and its dots.
@@ -62,6 +69,19 @@ pub struct CameraPrior {
     pub covariance: DMatrix<f64>,
 }
 
+/// How the camera's inner orientation enters the adjustment.
+#[derive(Debug, Clone)]
+pub enum CameraSource<'a> {
+    /// Held fixed.
+    Fixed,
+    /// A previous camera calibration as a prior with its covariance (sequential).
+    Prior(CameraPrior),
+    /// Its field images in the same adjustment (joint): the bundle's problem gives the
+    /// observations, the field control, which parameters are free (inner, and the poses' datum
+    /// of a free network) and, adjusted, the start.
+    Field(&'a Problem),
+}
+
 /// What the adjustment needs.
 #[derive(Debug, Clone)]
 pub struct SystemInput<'a> {
@@ -69,15 +89,15 @@ pub struct SystemInput<'a> {
     pub grid: PixelGrid<f64>,
     /// The calibrated inner orientation.
     pub inner: InnerOrientation<f64>,
-    /// Its covariance; None holds it fixed.
-    pub camera: Option<CameraPrior>,
+    /// Where the camera comes from (with `Field`, `inner` is the bundle's).
+    pub camera: CameraSource<'a>,
     /// The plate's control points.
     pub control: &'a [ControlPoint],
     /// The plate images.
     pub plates: Vec<PlateObservations>,
     /// Every ray a free line (4 parameters) instead of a line through the centre (2).
     pub noncentral: bool,
-    /// Start value of the image noise of both groups (px).
+    /// Start value of the image noise of every group (px).
     pub image_sigma_px: f64,
 }
 
@@ -204,8 +224,10 @@ pub struct SystemAdjustment {
     pub poses: Vec<ExteriorOrientation<f64>>,
     /// Estimated image noise of the plate targets (px).
     pub sigma_targets_px: f64,
-    /// Redundancy of the targets and the dots.
-    pub redundancy: [f64; 2],
+    /// Estimated image noise of the field targets (px), when they were in the adjustment.
+    pub sigma_field_px: Option<f64>,
+    /// Redundancy of the plate targets, the dots and the field targets.
+    pub redundancy: [f64; GROUPS],
     /// Rays seen on one plate only (determined by the central model, without redundancy).
     pub single_plane: Vec<u16>,
     /// Rays left out (seen on one plate, non-central model).
@@ -241,33 +263,89 @@ impl SystemModel {
 struct State {
     inner: [f64; INNER],
     poses: Vec<ExteriorOrientation<f64>>,
+    field_poses: Vec<ExteriorOrientation<f64>>,
     centre: Vector3<f64>,
     control: Vec<Vector3<f64>>,
     rays: Vec<Vec<f64>>,
+    field_points: Vec<Vector3<f64>>,
 }
 
-/// Index layout of the reduced (global) system.
+/// Index layout of the reduced (global) system: [free inner | plate poses | free field pose
+/// parameters | P | plate control].
 struct Layout {
     inner: Vec<usize>,
     plates: usize,
+    field: Vec<[Option<usize>; POSE]>,
+    centre: usize,
     control: usize,
 }
 
 impl Layout {
-    fn pose(&self, k: usize) -> usize {
-        self.inner.len() + 6 * k
+    fn new(inner: Vec<usize>, plates: usize, pose_free: &[[bool; POSE]], control: usize) -> Self {
+        let mut next = inner.len() + POSE * plates;
+        let field = pose_free
+            .iter()
+            .map(|free| {
+                std::array::from_fn(|a| {
+                    free[a].then(|| {
+                        next += 1;
+                        next - 1
+                    })
+                })
+            })
+            .collect();
+        Self {
+            inner,
+            plates,
+            field,
+            centre: next,
+            control,
+        }
     }
-    fn centre(&self) -> usize {
-        self.inner.len() + 6 * self.plates
+    fn pose(&self, k: usize) -> usize {
+        self.inner.len() + POSE * k
     }
     fn point(&self, j: usize) -> usize {
-        self.centre() + 3 + 3 * j
+        self.centre + 3 + 3 * j
     }
     fn size(&self) -> usize {
         self.point(self.control)
     }
+    /// The eliminated kinds: the rays (`ray_sizes`) with [inner | plate poses | P], the field
+    /// targets (`field_points`) with [inner | field poses].
+    fn kinds(&self, ray_sizes: Vec<usize>, field_points: usize) -> [Kind; 2] {
+        let n = self.size();
+        let rays = (0..self.pose(self.plates))
+            .chain(self.centre..self.centre + 3)
+            .collect();
+        let field = (0..self.inner.len())
+            .chain(self.pose(self.plates)..self.centre)
+            .collect();
+        [
+            Kind::new(n, rays, ray_sizes),
+            Kind::new(n, field, vec![3; field_points]),
+        ]
+    }
 }
 
+/// The eliminated kinds.
+const RAYS: usize = 0;
+const FIELD: usize = 1;
+/// The variance-component groups.
+const PLATE_TARGETS: usize = 0;
+const DOTS: usize = 1;
+const FIELD_TARGETS: usize = 2;
+
+/// Everything fixed during the adjustment.
+struct Setup<'a> {
+    input: &'a SystemInput<'a>,
+    field: Option<&'a Problem>,
+    layout: Layout,
+    kinds: [Kind; 2],
+    ray_index: BTreeMap<u16, usize>,
+    inner0: [f64; INNER],
+    prior_weight: Option<DMatrix<f64>>,
+}
 /// The point where a ray (centre, params) meets plate `pose`'s surface, in the plate frame.
 fn dot_point(
     pose: &ExteriorOrientation<f64>,
@@ -338,28 +416,8 @@ fn dot_point_jacobian(
     Some(jac)
 }
 
-/// One observation's linearisation: residual (mm), global columns with their 2-vectors, and the
-/// ray's block (2 × m) for dots.
-struct Linear {
-    value: Vector2<f64>,
-    global: Vec<(usize, Vector2<f64>)>,
-    local: Option<(usize, DMatrix<f64>)>,
-    group: usize,
-}
-
-/// The normal equations of the current state, and vᵀPv per group.
-struct Normal {
-    u: DMatrix<f64>,
-    g: DVector<f64>,
-    v: Vec<DMatrix<f64>>,
-    w: Vec<DMatrix<f64>>,
-    g_r: Vec<DVector<f64>>,
-    cost: [f64; 3],
-    rows: Vec<Linear>,
-}
-
-/// The whole adjustment (see the module docs). The start comes from the resected poses and the
-/// ΔZ method on the plane points in the camera system.
+/// The whole adjustment (see the module docs). The start comes from the resected poses, the
+/// ΔZ method on the plane points in the camera system and, joint, the bundle's values.
 pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemError> {
     let plates = &input.plates;
     if plates.len() < 2 {
@@ -421,70 +479,71 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
         .iter()
         .map(|id| start_line(&centre, &by_ray[id], input.noncentral))
         .collect();
-    let inner_free: Vec<usize> = match &input.camera {
-        Some(prior) => (0..INNER).filter(|k| prior.free[*k]).collect(),
-        None => Vec::new(),
+    let (free, field) = match &input.camera {
+        CameraSource::Fixed => ([false; INNER], None),
+        CameraSource::Prior(prior) => (prior.free, None),
+        CameraSource::Field(problem) => (problem.free.inner, Some(*problem)),
     };
-    let layout = Layout {
-        inner: inner_free.clone(),
-        plates: plates.len(),
-        control: input.control.len(),
-    };
+    let inner_free: Vec<usize> = (0..INNER).filter(|k| free[*k]).collect();
+    let pose_free = field.map_or(&[][..], |f| &f.pose_free[..]);
+    let layout = Layout::new(
+        inner_free.clone(),
+        plates.len(),
+        pose_free,
+        input.control.len(),
+    );
+    let kinds = layout.kinds(
+        rays.iter().map(Vec::len).collect(),
+        field.map_or(0, |f| f.xyz.len()),
+    );
     let prior_weight = match &input.camera {
-        Some(prior) => Some(
+        CameraSource::Prior(prior) => Some(
             prior
                 .covariance
                 .clone()
                 .try_inverse()
                 .ok_or(SystemError::Singular)?,
         ),
-        None => None,
+        _ => None,
     };
     let inner0 = inner_to_array(&input.inner);
+    let setup = Setup {
+        input,
+        field,
+        layout,
+        kinds,
+        ray_index,
+        inner0,
+        prior_weight,
+    };
     let mut state = State {
         inner: inner0,
         poses: plates.iter().map(|p| p.start).collect(),
+        field_poses: field.map_or_else(Vec::new, |f| f.poses.clone()),
         centre,
         control: input.control.iter().map(|c| c.xyz).collect(),
         rays,
+        field_points: field.map_or_else(Vec::new, |f| f.xyz.clone()),
     };
-    let mut sigma = [input.image_sigma_px * px; 2];
+    let mut sigma = [input.image_sigma_px * px; GROUPS];
     let mut iterations = 0;
     let mut result = None;
     for _round in 0..8 {
         // Gauss-Newton to convergence with the current weights.
-        let mut normal = assemble(
-            input,
-            &layout,
-            &state,
-            &ray_index,
-            &inner0,
-            &prior_weight,
-            &sigma,
-        )?;
+        let mut normal = assemble(&setup, &state, &sigma)?;
         for _ in 0..30 {
             iterations += 1;
-            let Reduced { s, b, v_inv } = reduce(&normal)?;
-            let chol = s.clone().cholesky().ok_or(SystemError::Singular)?;
-            let dg = chol.solve(&b);
-            let dr: Vec<DVector<f64>> = (0..normal.v.len())
-                .map(|r| &v_inv[r] * (&normal.g_r[r] - normal.w[r].transpose() * &dg))
-                .collect();
-            let total: f64 = normal.cost.iter().sum();
+            let reduced = reduce(&normal, &setup.kinds)?;
+            let chol = reduced.s.clone().cholesky().ok_or(SystemError::Singular)?;
+            let dg = chol.solve(&reduced.b);
+            let dl = reduced.back_substitute(&normal, &setup.kinds, &dg);
+            let total = normal.total();
             let mut scale = 1.0;
             let mut accepted = false;
             while scale > 1e-4 {
-                let trial = step(&state, &layout, &dg, &dr, scale);
-                if let Ok(n) = assemble(
-                    input,
-                    &layout,
-                    &trial,
-                    &ray_index,
-                    &inner0,
-                    &prior_weight,
-                    &sigma,
-                ) {
-                    if n.cost.iter().sum::<f64>() <= total * (1.0 + 1e-12) {
+                let trial = step(&state, &setup.layout, &dg, &dl, scale);
+                if let Ok(n) = assemble(&setup, &trial, &sigma) {
+                    if n.total() <= total * (1.0 + 1e-12) {
                         state = trial;
                         normal = n;
                         accepted = true;
@@ -493,41 +552,16 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
                 }
                 scale /= 2.0;
             }
-            let decrease = total - normal.cost.iter().sum::<f64>();
-            if !accepted || decrease < 1e-10 * total {
+            if !accepted || total - normal.total() < 1e-10 * total {
                 break;
             }
         }
         // Redundancy numbers per group, and the covariance.
-        let Reduced { s, v_inv, .. } = reduce(&normal)?;
-        let s_inv = s.cholesky().ok_or(SystemError::Singular)?.inverse();
-        let blocks: Vec<(DMatrix<f64>, DMatrix<f64>)> = (0..v_inv.len())
-            .map(|r| ray_covariance(&normal, &s_inv, &v_inv, r))
-            .collect();
-        let mut red = [0.0; 3];
-        for row in &normal.rows {
-            let weight = 1.0 / (sigma[row.group] * sigma[row.group]);
-            // q = A Σ Aᵀ over the observation's few non-zero columns.
-            let mut q = Matrix2::zeros();
-            for (ca, ja) in &row.global {
-                for (cb, jb) in &row.global {
-                    q += ja * jb.transpose() * s_inv[(*ca, *cb)];
-                }
-            }
-            if let Some((r, a_r)) = &row.local {
-                let (own, cross) = &blocks[*r];
-                let mut cg = DMatrix::zeros(cross.nrows(), 2);
-                for (col, d) in &row.global {
-                    cg += cross.column(*col) * d.transpose();
-                }
-                let c = a_r * cg;
-                let o = a_r * own * a_r.transpose();
-                q += Matrix2::from_fn(|i, j| c[(i, j)] + c[(j, i)] + o[(i, j)]);
-            }
-            red[row.group] += 2.0 - weight * q.trace();
-        }
+        let reduced = reduce(&normal, &setup.kinds)?;
+        let cov = covariance(&setup.kinds, &reduced)?;
+        let red = cov.redundancy(&normal, &setup.kinds, &sigma);
         let mut settled = true;
-        for g in 0..2 {
+        for g in 0..GROUPS {
             if red[g] > 1.0 {
                 let factor = normal.cost[g] / red[g];
                 if (factor - 1.0).abs() > 1e-2 {
@@ -536,16 +570,17 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
                 sigma[g] *= factor.sqrt();
             }
         }
-        result = Some((normal, s_inv, v_inv, red));
+        result = Some((normal, cov, red));
         if settled {
             break;
         }
     }
-    let (normal, s_inv, v_inv, red) = result.ok_or(SystemError::Singular)?;
+    let (normal, cov, red) = result.ok_or(SystemError::Singular)?;
+    let layout = &setup.layout;
     // The datum image: the smallest variance of the camera position in the plate frame.
     let position_variance = |k: usize| {
         (3..6)
-            .map(|a| s_inv[(layout.pose(k) + a, layout.pose(k) + a)])
+            .map(|a| cov.s_inv[(layout.pose(k) + a, layout.pose(k) + a)])
             .sum::<f64>()
     };
     let datum = (0..plates.len())
@@ -553,16 +588,19 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
         .unwrap_or(0);
     // The core [free inner | P | datum pose] of the reduced covariance.
     let core: Vec<usize> = (0..inner_free.len())
-        .chain((0..3).map(|a| layout.centre() + a))
+        .chain((0..3).map(|a| layout.centre + a))
         .chain((0..6).map(|a| layout.pose(datum) + a))
         .collect();
     let core_covariance =
-        DMatrix::from_fn(core.len(), core.len(), |a, b| s_inv[(core[a], core[b])]);
+        DMatrix::from_fn(core.len(), core.len(), |a, b| cov.s_inv[(core[a], core[b])]);
     let mut rms: Vec<(f64, usize)> = vec![(0.0, 0); ray_ids.len()];
     for row in &normal.rows {
-        if let Some((r, _)) = &row.local {
-            rms[*r].0 += row.value.norm_squared();
-            rms[*r].1 += 1;
+        if let Some(Local {
+            kind: RAYS, block, ..
+        }) = &row.local
+        {
+            rms[*block].0 += row.value.norm_squared();
+            rms[*block].1 += 1;
         }
     }
     // Miss distances: each dot's camera ray met with its adjusted plate, from the adjusted line.
@@ -576,7 +614,7 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
         };
         let plane = crate::projector_calibration::Plane::at_z(0.0);
         for dot in &plate.dots {
-            let Some(&r) = ray_index.get(&dot.id) else {
+            let Some(&r) = setup.ray_index.get(&dot.id) else {
                 continue;
             };
             if let Ok(x) =
@@ -594,8 +632,7 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
         .iter()
         .enumerate()
         .map(|(r, id)| {
-            let (own, cross_all) = ray_covariance(&normal, &s_inv, &v_inv, r);
-            let cross = DMatrix::from_fn(own.nrows(), core.len(), |a, b| cross_all[(a, core[b])]);
+            let (own, cross) = cov.block(&setup.kinds, RAYS, r, &core);
             AdjustedRay {
                 id: *id,
                 params: state.rays[r].clone(),
@@ -617,21 +654,21 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
             centre: state.centre,
             rays: adjusted,
             core_covariance,
-            sigma_dots_px: sigma[1] / px,
+            sigma_dots_px: sigma[DOTS] / px,
             datum: Some(Datum {
                 image: plates[datum].image.clone(),
                 pose: state.poses[datum],
             }),
         },
         poses: state.poses,
-        sigma_targets_px: sigma[0] / px,
-        redundancy: [red[0], red[1]],
+        sigma_targets_px: sigma[PLATE_TARGETS] / px,
+        sigma_field_px: field.map(|_| sigma[FIELD_TARGETS] / px),
+        redundancy: red,
         single_plane,
         left_out,
         iterations,
     })
 }
-
 /// A ray's start: slopes of the line through the centre fitted to its points, and for the
 /// non-central model the offset at the centre's z.
 fn start_line(centre: &Vector3<f64>, points: &[PlanePoint], noncentral: bool) -> Vec<f64> {
@@ -653,12 +690,12 @@ fn start_line(centre: &Vector3<f64>, points: &[PlanePoint], noncentral: bool) ->
     }
 }
 
-/// The state moved by `scale` × the step.
+/// The state moved by `scale` × the step (global `dg`, per kind the blocks' `dl`).
 fn step(
     state: &State,
     layout: &Layout,
     dg: &DVector<f64>,
-    dr: &[DVector<f64>],
+    dl: &[Vec<DVector<f64>>],
     scale: f64,
 ) -> State {
     let mut next = state.clone();
@@ -672,39 +709,65 @@ fn step(
         }
         *pose = pose_from(a);
     }
+    for (pose, free) in next.field_poses.iter_mut().zip(&layout.field) {
+        let mut a = pose_array(pose);
+        for (v, at) in a.iter_mut().zip(free) {
+            if let Some(i) = at {
+                *v += scale * dg[*i];
+            }
+        }
+        *pose = pose_from(a);
+    }
     for a in 0..3 {
-        next.centre[a] += scale * dg[layout.centre() + a];
+        next.centre[a] += scale * dg[layout.centre + a];
     }
     for (j, x) in next.control.iter_mut().enumerate() {
         for a in 0..3 {
             x[a] += scale * dg[layout.point(j) + a];
         }
     }
-    for (params, d) in next.rays.iter_mut().zip(dr) {
+    for (params, d) in next.rays.iter_mut().zip(&dl[RAYS]) {
         for (p, v) in params.iter_mut().zip(d.iter()) {
             *p += scale * v;
         }
     }
+    for (x, d) in next.field_points.iter_mut().zip(&dl[FIELD]) {
+        *x += d * scale;
+    }
     next
 }
 
-/// Linearises every observation and accumulates the normal equations (weights from σ per
-/// group: targets, dots; control by its σ; the inner orientation by the prior).
-#[allow(clippy::too_many_arguments)]
-fn assemble(
-    input: &SystemInput,
+/// The global columns of an image residual: the free inner parameters, then the pose's free
+/// parameters at their indices `pose` (None: held fixed).
+fn image_columns(
     layout: &Layout,
-    state: &State,
-    ray_index: &BTreeMap<u16, usize>,
-    inner0: &[f64; INNER],
-    prior_weight: &Option<DMatrix<f64>>,
-    sigma: &[f64; 2],
-) -> Result<Normal, SystemError> {
-    let n = layout.size();
+    r: &crate::residual::ImageResidual,
+    pose: &[Option<usize>; POSE],
+) -> Vec<(usize, Vector2<f64>)> {
+    let mut global: Vec<(usize, Vector2<f64>)> = layout
+        .inner
+        .iter()
+        .enumerate()
+        .map(|(slot, &k)| (slot, r.d_inner.column(k).into_owned()))
+        .collect();
+    for (a, at) in pose.iter().enumerate() {
+        if let Some(i) = at {
+            global.push((*i, r.d_pose.column(a).into_owned()));
+        }
+    }
+    global
+}
+
+/// Linearises every observation and accumulates the normal equations (weights from σ per
+/// group: plate targets, dots, field targets; control by its σ; the inner orientation by the
+/// prior).
+fn assemble(setup: &Setup, state: &State, sigma: &[f64; GROUPS]) -> Result<Normal, SystemError> {
+    let Setup { input, layout, .. } = setup;
     let inner = inner_from_array(state.inner);
     let mut rows = Vec::new();
     for (k, plate) in input.plates.iter().enumerate() {
         let pose = &state.poses[k];
+        let at: [Option<usize>; POSE] = std::array::from_fn(|a| Some(layout.pose(k) + a));
         for (pixel, j) in &plate.targets {
             let photo = input.grid.pixel_to_photo(pixel.x, pixel.y);
             let r = image_residual(&inner, &photo, pose, &state.control[*j]);
@@ -714,13 +777,7 @@ fn assemble(
                     plate.image, input.control[*j].point
                 )));
             }
-            let mut global = Vec::new();
-            for (slot, &kk) in layout.inner.iter().enumerate() {
-                global.push((slot, r.d_inner.column(kk).into_owned()));
-            }
-            for a in 0..6 {
-                global.push((layout.pose(k) + a, r.d_pose.column(a).into_owned()));
-            }
+            let mut global = image_columns(layout, &r, &at);
             for a in 0..3 {
                 global.push((layout.point(*j) + a, r.d_point.column(a).into_owned()));
             }
@@ -728,11 +785,11 @@ fn assemble(
                 value: r.value,
                 global,
                 local: None,
-                group: 0,
+                group: PLATE_TARGETS,
             });
         }
         for dot in &plate.dots {
-            let Some(&ri) = ray_index.get(&dot.id) else {
+            let Some(&ri) = setup.ray_index.get(&dot.id) else {
                 continue;
             };
             let params = &state.rays[ri];
@@ -749,135 +806,82 @@ fn assemble(
             if r.z_cam >= 0.0 {
                 return Err(geometry());
             }
+            // The dot's plate point moves with the pose, the centre and the ray.
             let through = DMatrix::from_fn(2, 3, |a, b| r.d_point[(a, b)]) * &jx;
-            let mut global = Vec::new();
-            for (slot, &kk) in layout.inner.iter().enumerate() {
-                global.push((slot, r.d_inner.column(kk).into_owned()));
-            }
-            for a in 0..6 {
-                let d = r.d_pose.column(a) + Vector2::new(through[(0, a)], through[(1, a)]);
-                global.push((layout.pose(k) + a, d));
+            let mut global = image_columns(layout, &r, &at);
+            for (a, (_, d)) in global.iter_mut().skip(layout.inner.len()).enumerate() {
+                *d += Vector2::new(through[(0, a)], through[(1, a)]);
             }
             for a in 0..3 {
                 let d = Vector2::new(through[(0, 6 + a)], through[(1, 6 + a)]);
-                global.push((layout.centre() + a, d));
+                global.push((layout.centre + a, d));
             }
-            let local = through.columns(9, params.len()).into_owned();
             rows.push(Linear {
                 value: r.value,
                 global,
-                local: Some((ri, local)),
-                group: 1,
+                local: Some(Local {
+                    kind: RAYS,
+                    block: ri,
+                    d: through.columns(9, params.len()).into_owned(),
+                }),
+                group: DOTS,
             });
         }
     }
-    let rays = state.rays.len();
-    let mut normal = Normal {
-        u: DMatrix::zeros(n, n),
-        g: DVector::zeros(n),
-        v: state
-            .rays
-            .iter()
-            .map(|p| DMatrix::zeros(p.len(), p.len()))
-            .collect(),
-        w: state
-            .rays
-            .iter()
-            .map(|p| DMatrix::zeros(n, p.len()))
-            .collect(),
-        g_r: state.rays.iter().map(|p| DVector::zeros(p.len())).collect(),
-        cost: [0.0; 3],
-        rows: Vec::new(),
-    };
-    debug_assert_eq!(normal.v.len(), rays);
-    for row in &rows {
-        let w = 1.0 / (sigma[row.group] * sigma[row.group]);
-        normal.cost[row.group] += w * row.value.norm_squared();
-        for (ca, ja) in &row.global {
-            normal.g[*ca] -= w * ja.dot(&row.value);
-            for (cb, jb) in &row.global {
-                normal.u[(*ca, *cb)] += w * ja.dot(jb);
+    if let Some(field) = setup.field {
+        for o in field.observations.iter().filter(|o| o.active) {
+            let r = image_residual(
+                &inner,
+                &o.photo,
+                &state.field_poses[o.image],
+                &state.field_points[o.point],
+            );
+            if r.z_cam >= 0.0 {
+                return Err(SystemError::Geometry(format!(
+                    "field image {:?}: target {} lies behind the camera",
+                    field.images[o.image], field.points[o.point]
+                )));
             }
-        }
-        if let Some((r, a_r)) = &row.local {
-            let v2 = DVector::from_column_slice(row.value.as_slice());
-            normal.v[*r] += a_r.transpose() * a_r * w;
-            normal.g_r[*r] -= a_r.transpose() * &v2 * w;
-            for (ca, ja) in &row.global {
-                let wa = a_r.transpose() * DVector::from_column_slice(ja.as_slice()) * w;
-                for b in 0..a_r.ncols() {
-                    normal.w[*r][(*ca, b)] += wa[b];
-                }
-            }
+            rows.push(Linear {
+                value: r.value,
+                global: image_columns(layout, &r, &layout.field[o.image]),
+                local: Some(Local {
+                    kind: FIELD,
+                    block: o.point,
+                    d: DMatrix::from_fn(2, 3, |a, b| r.d_point[(a, b)]),
+                }),
+                group: FIELD_TARGETS,
+            });
         }
     }
-    // Control coordinates and the inner orientation's prior.
+    let mut normal = Normal::new(layout.size(), &setup.kinds, rows, sigma);
+    // Control coordinates of the plate and the field, and the inner orientation's prior.
     for (j, c) in input.control.iter().enumerate() {
         let w = 1.0 / c.sigma.max(1e-6).powi(2);
-        let d = state.control[j] - c.xyz;
-        normal.cost[2] += w * d.norm_squared();
-        for a in 0..3 {
-            let s = layout.point(j) + a;
-            normal.u[(s, s)] += w;
-            normal.g[s] -= w * d[a];
-        }
+        let at: Vec<usize> = (0..3).map(|a| layout.point(j) + a).collect();
+        let d = DVector::from_column_slice((state.control[j] - c.xyz).as_slice());
+        normal.global_prior(&at, &(DMatrix::identity(3, 3) * w), &d);
     }
-    if let Some(p) = prior_weight {
-        let d = DVector::from_iterator(
-            layout.inner.len(),
-            layout.inner.iter().map(|&k| state.inner[k] - inner0[k]),
-        );
-        normal.cost[2] += (d.transpose() * p * &d)[(0, 0)];
-        let m = layout.inner.len();
-        let pd = p * &d;
-        for a in 0..m {
-            normal.g[a] -= pd[a];
-            for b in 0..m {
-                normal.u[(a, b)] += p[(a, b)];
+    if let Some(field) = setup.field {
+        for (j, c) in field.control.iter().enumerate() {
+            if let Some(c) = c {
+                let d = DVector::from_column_slice((state.field_points[j] - c.xyz).as_slice());
+                normal.local_prior(FIELD, j, 1.0 / c.sigma.max(1e-6).powi(2), &d);
             }
         }
     }
-    normal.rows = rows;
-    Ok(normal)
-}
-
-/// Ray r's covariance and its covariance with the reduced parameters (m × G):
-/// V⁻¹ + V⁻¹ Wᵀ S⁻¹ W V⁻¹ and −V⁻¹ Wᵀ S⁻¹.
-fn ray_covariance(
-    normal: &Normal,
-    s_inv: &DMatrix<f64>,
-    v_inv: &[DMatrix<f64>],
-    r: usize,
-) -> (DMatrix<f64>, DMatrix<f64>) {
-    let wv = &normal.w[r] * &v_inv[r];
-    let cross = -(wv.transpose() * s_inv);
-    let own = &v_inv[r] - &cross * &wv;
-    (own, cross)
-}
-
-/// The reduced system S Δg = b and the rays' V⁻¹.
-struct Reduced {
-    s: DMatrix<f64>,
-    b: DVector<f64>,
-    v_inv: Vec<DMatrix<f64>>,
-}
-
-/// The reduced system of the normal equations.
-fn reduce(normal: &Normal) -> Result<Reduced, SystemError> {
-    let mut s = normal.u.clone();
-    let mut b = normal.g.clone();
-    let mut v_inv = Vec::with_capacity(normal.v.len());
-    for r in 0..normal.v.len() {
-        let vi = normal.v[r]
-            .clone()
-            .try_inverse()
-            .ok_or(SystemError::Singular)?;
-        let wv = &normal.w[r] * &vi;
-        s -= &wv * normal.w[r].transpose();
-        b -= &wv * &normal.g_r[r];
-        v_inv.push(vi);
+    if let Some(p) = &setup.prior_weight {
+        let d = DVector::from_iterator(
+            layout.inner.len(),
+            layout
+                .inner
+                .iter()
+                .map(|&k| state.inner[k] - setup.inner0[k]),
+        );
+        let at: Vec<usize> = (0..layout.inner.len()).collect();
+        normal.global_prior(&at, p, &d);
     }
-    Ok(Reduced { s, b, v_inv })
+    Ok(normal)
 }
 
 /// A point reconstructed in the camera system with its covariance in two shares.

@@ -1,0 +1,346 @@
+//! The normal equations of the whole-system adjustment with eliminated blocks: their
+//! accumulation, the reduced system (the Schur complement, as the bundle eliminates its points,
+//! [`crate::bundle::solver`]), the covariance of both parts and the redundancy numbers.
+//!
+//! The unknowns are the reduced (global) parameters g and blocks of local parameters b (a ray's 2
+//! or 4, a field target's 3). Blocks come in kinds; every block of a kind is observed only
+//! together with a fixed set of global parameters, the kind's rows (rays: the free inner
+//! parameters, the plate poses and the centre; field targets: the free inner parameters and the
+//! field poses). With the normal matrix in blocks U (global), V_b (block b) and W_b (its
+//! coupling, kind rows × m):
+//!
+//! ```text
+//! S = U − Σ_b W_b V_b⁻¹ W_bᵀ,   S Δg = g − Σ_b W_b V_b⁻¹ g_b,   Δb = V_b⁻¹ (g_b − W_bᵀ Δg)
+//! Σ_gg = S⁻¹,   Σ_bg = −V_b⁻¹ W_bᵀ S⁻¹,   Σ_bb = V_b⁻¹ + V_b⁻¹ W_bᵀ S⁻¹ W_b V_b⁻¹
+//! ```
+//!
+//! kind by kind as dense matrix products over the kind's rows (Y = W blockdiag(V⁻¹), S −= Y Wᵀ):
+//! a field target is seen in most field images, so its coupling is dense in the field poses.
+
+use super::SystemError;
+use nalgebra::{DMatrix, DVector, Matrix2, Vector2};
+
+/// Observation groups with their own variance component: plate targets, dots, field targets.
+pub(super) const GROUPS: usize = 3;
+
+/// The columns of one observation that belong to an eliminated block.
+pub(super) struct Local {
+    /// The block's kind.
+    pub kind: usize,
+    /// The block within its kind.
+    pub block: usize,
+    /// ∂v/∂(block parameters), 2 × m.
+    pub d: DMatrix<f64>,
+}
+
+/// One observation's linearisation: residual (mm), its global columns with their 2-vectors, its
+/// block's columns if any, and its variance-component group.
+pub(super) struct Linear {
+    /// v (mm).
+    pub value: Vector2<f64>,
+    /// (global index, ∂v/∂g).
+    pub global: Vec<(usize, Vector2<f64>)>,
+    /// The block's columns.
+    pub local: Option<Local>,
+    /// Its group (< [`GROUPS`]).
+    pub group: usize,
+}
+
+/// A kind of eliminated block: the global parameters its blocks are observed with and the blocks'
+/// sizes.
+pub(super) struct Kind {
+    rows: Vec<usize>,
+    row_of: Vec<Option<usize>>,
+    offsets: Vec<usize>,
+    sizes: Vec<usize>,
+}
+
+impl Kind {
+    /// A kind whose blocks (of `sizes`) meet the global parameters `rows` (of `n`).
+    pub fn new(n: usize, rows: Vec<usize>, sizes: Vec<usize>) -> Self {
+        let mut row_of = vec![None; n];
+        for (a, &r) in rows.iter().enumerate() {
+            row_of[r] = Some(a);
+        }
+        let offsets = sizes
+            .iter()
+            .scan(0, |at, m| {
+                let o = *at;
+                *at += m;
+                Some(o)
+            })
+            .collect();
+        Self {
+            rows,
+            row_of,
+            offsets,
+            sizes,
+        }
+    }
+
+    fn width(&self) -> usize {
+        self.sizes.iter().sum()
+    }
+}
+
+/// One kind's share of the normal equations.
+pub(super) struct KindNormal {
+    /// V_b per block.
+    pub v: Vec<DMatrix<f64>>,
+    /// The blocks' right-hand sides.
+    pub g: Vec<DVector<f64>>,
+    /// W of all blocks side by side (kind rows × Σ m).
+    pub w: DMatrix<f64>,
+}
+
+/// The normal equations of one state.
+pub(super) struct Normal {
+    /// U.
+    pub u: DMatrix<f64>,
+    /// The global right-hand side.
+    pub g: DVector<f64>,
+    /// The eliminated blocks, kind by kind.
+    pub kinds: Vec<KindNormal>,
+    /// vᵀPv per group, and of the prior observations (control, inner orientation) last.
+    pub cost: [f64; GROUPS + 1],
+    /// The observations' linearisations.
+    pub rows: Vec<Linear>,
+}
+
+impl Normal {
+    /// The normal equations of `rows` weighted by 1/σ² of their group.
+    pub fn new(n: usize, kinds: &[Kind], rows: Vec<Linear>, sigma: &[f64; GROUPS]) -> Self {
+        let mut normal = Normal {
+            u: DMatrix::zeros(n, n),
+            g: DVector::zeros(n),
+            kinds: kinds
+                .iter()
+                .map(|k| KindNormal {
+                    v: k.sizes.iter().map(|&m| DMatrix::zeros(m, m)).collect(),
+                    g: k.sizes.iter().map(|&m| DVector::zeros(m)).collect(),
+                    w: DMatrix::zeros(k.rows.len(), k.width()),
+                })
+                .collect(),
+            cost: [0.0; GROUPS + 1],
+            rows: Vec::new(),
+        };
+        for row in &rows {
+            let w = 1.0 / (sigma[row.group] * sigma[row.group]);
+            normal.cost[row.group] += w * row.value.norm_squared();
+            for (ca, ja) in &row.global {
+                normal.g[*ca] -= w * ja.dot(&row.value);
+                for (cb, jb) in &row.global {
+                    normal.u[(*ca, *cb)] += w * ja.dot(jb);
+                }
+            }
+            if let Some(Local { kind, block, d }) = &row.local {
+                let (k, kn) = (&kinds[*kind], &mut normal.kinds[*kind]);
+                kn.v[*block] += d.transpose() * d * w;
+                kn.g[*block] -= d.transpose() * row.value * w;
+                let off = k.offsets[*block];
+                for (ca, ja) in &row.global {
+                    // By construction every global column of a block's observation is a row of
+                    // its kind.
+                    let Some(ra) = k.row_of[*ca] else { continue };
+                    let dw = d.transpose() * ja * w;
+                    for (b, v) in dw.iter().enumerate() {
+                        kn.w[(ra, off + b)] += v;
+                    }
+                }
+            }
+        }
+        normal.rows = rows;
+        normal
+    }
+
+    /// A prior observation of global parameters `at`: weight matrix `p`, state minus observed
+    /// value `d`.
+    pub fn global_prior(&mut self, at: &[usize], p: &DMatrix<f64>, d: &DVector<f64>) {
+        let pd = p * d;
+        self.cost[GROUPS] += d.dot(&pd);
+        for (a, &ga) in at.iter().enumerate() {
+            self.g[ga] -= pd[a];
+            for (b, &gb) in at.iter().enumerate() {
+                self.u[(ga, gb)] += p[(a, b)];
+            }
+        }
+    }
+
+    /// A prior observation of every parameter of block `block` of `kind` with weight `p` each;
+    /// state minus observed value `d`.
+    pub fn local_prior(&mut self, kind: usize, block: usize, p: f64, d: &DVector<f64>) {
+        let kn = &mut self.kinds[kind];
+        self.cost[GROUPS] += p * d.norm_squared();
+        for a in 0..d.len() {
+            kn.v[block][(a, a)] += p;
+        }
+        kn.g[block] -= d * p;
+    }
+
+    /// The weighted sum of squares over all observations.
+    pub fn total(&self) -> f64 {
+        self.cost.iter().sum()
+    }
+}
+
+/// The reduced system S Δg = b, the blocks' V⁻¹ and Y = W blockdiag(V⁻¹) per kind.
+pub(super) struct Reduced {
+    /// S.
+    pub s: DMatrix<f64>,
+    /// b.
+    pub b: DVector<f64>,
+    v_inv: Vec<Vec<DMatrix<f64>>>,
+    y: Vec<DMatrix<f64>>,
+}
+
+/// Eliminates every block.
+pub(super) fn reduce(normal: &Normal, kinds: &[Kind]) -> Result<Reduced, SystemError> {
+    let mut s = normal.u.clone();
+    let mut b = normal.g.clone();
+    let mut v_inv = Vec::with_capacity(kinds.len());
+    let mut ys = Vec::with_capacity(kinds.len());
+    for (kind, kn) in kinds.iter().zip(&normal.kinds) {
+        let mut y = kn.w.clone();
+        let mut yg = DVector::zeros(kind.rows.len());
+        let mut inverses = Vec::with_capacity(kn.v.len());
+        for (blk, v) in kn.v.iter().enumerate() {
+            let (off, m) = (kind.offsets[blk], kind.sizes[blk]);
+            let vi = v.clone().try_inverse().ok_or(SystemError::Singular)?;
+            let yb = kn.w.columns(off, m) * &vi;
+            yg += &yb * &kn.g[blk];
+            y.columns_mut(off, m).copy_from(&yb);
+            inverses.push(vi);
+        }
+        let ywt = &y * kn.w.transpose();
+        for (a, &ra) in kind.rows.iter().enumerate() {
+            b[ra] -= yg[a];
+            for (c, &rc) in kind.rows.iter().enumerate() {
+                s[(ra, rc)] -= ywt[(a, c)];
+            }
+        }
+        v_inv.push(inverses);
+        ys.push(y);
+    }
+    Ok(Reduced { s, b, v_inv, y: ys })
+}
+
+impl Reduced {
+    /// The blocks' steps from the global step: Δb = V_b⁻¹ (g_b − W_bᵀ Δg), kind by kind.
+    pub fn back_substitute(
+        &self,
+        normal: &Normal,
+        kinds: &[Kind],
+        dg: &DVector<f64>,
+    ) -> Vec<Vec<DVector<f64>>> {
+        kinds
+            .iter()
+            .zip(&normal.kinds)
+            .zip(&self.v_inv)
+            .map(|((kind, kn), v_inv)| {
+                let dg_rows =
+                    DVector::from_iterator(kind.rows.len(), kind.rows.iter().map(|&r| dg[r]));
+                v_inv
+                    .iter()
+                    .enumerate()
+                    .map(|(blk, vi)| {
+                        let w = kn.w.columns(kind.offsets[blk], kind.sizes[blk]);
+                        vi * (&kn.g[blk] - w.transpose() * &dg_rows)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+}
+
+/// The covariance (in units of the weights' σ): S⁻¹, per kind the blocks' covariance with the
+/// kind's rows (Σ m × rows) and per block its own.
+pub(super) struct Covariance {
+    /// S⁻¹.
+    pub s_inv: DMatrix<f64>,
+    cross: Vec<DMatrix<f64>>,
+    own: Vec<Vec<DMatrix<f64>>>,
+}
+
+/// The covariance of the reduced system and of every block.
+pub(super) fn covariance(kinds: &[Kind], reduced: &Reduced) -> Result<Covariance, SystemError> {
+    let s_inv = reduced
+        .s
+        .clone()
+        .cholesky()
+        .ok_or(SystemError::Singular)?
+        .inverse();
+    let mut cross = Vec::with_capacity(kinds.len());
+    let mut own = Vec::with_capacity(kinds.len());
+    for ((kind, y), v_inv) in kinds.iter().zip(&reduced.y).zip(&reduced.v_inv) {
+        let rows = &kind.rows;
+        let sub = DMatrix::from_fn(rows.len(), rows.len(), |a, b| s_inv[(rows[a], rows[b])]);
+        let c = -(y.transpose() * sub);
+        own.push(
+            v_inv
+                .iter()
+                .enumerate()
+                .map(|(blk, vi)| {
+                    let (off, m) = (kind.offsets[blk], kind.sizes[blk]);
+                    vi - c.rows(off, m) * y.columns(off, m)
+                })
+                .collect(),
+        );
+        cross.push(c);
+    }
+    Ok(Covariance { s_inv, cross, own })
+}
+
+impl Covariance {
+    /// Block `block` of `kind`: its covariance and its covariance with the global parameters
+    /// `at` (m × at.len(); each must be a row of the kind).
+    pub fn block(
+        &self,
+        kinds: &[Kind],
+        kind: usize,
+        block: usize,
+        at: &[usize],
+    ) -> (DMatrix<f64>, DMatrix<f64>) {
+        let k = &kinds[kind];
+        let (off, m) = (k.offsets[block], k.sizes[block]);
+        let c = &self.cross[kind];
+        let cross = DMatrix::from_fn(m, at.len(), |a, b| {
+            k.row_of[at[b]].map_or(0.0, |r| c[(off + a, r)])
+        });
+        (self.own[kind][block].clone(), cross)
+    }
+
+    /// The sum of the redundancy numbers of each group's observations, 2 − tr(P A Σ Aᵀ) each.
+    pub fn redundancy(
+        &self,
+        normal: &Normal,
+        kinds: &[Kind],
+        sigma: &[f64; GROUPS],
+    ) -> [f64; GROUPS] {
+        let mut red = [0.0; GROUPS];
+        for row in &normal.rows {
+            let weight = 1.0 / (sigma[row.group] * sigma[row.group]);
+            // q = A Σ Aᵀ over the observation's few non-zero columns.
+            let mut q = Matrix2::zeros();
+            for (ca, ja) in &row.global {
+                for (cb, jb) in &row.global {
+                    q += ja * jb.transpose() * self.s_inv[(*ca, *cb)];
+                }
+            }
+            if let Some(Local { kind, block, d }) = &row.local {
+                let k = &kinds[*kind];
+                let (off, m) = (k.offsets[*block], k.sizes[*block]);
+                let mut cg = DMatrix::zeros(m, 2);
+                for (col, j) in &row.global {
+                    if let Some(r) = k.row_of[*col] {
+                        cg += self.cross[*kind].view((off, r), (m, 1)) * j.transpose();
+                    }
+                }
+                let c = d * cg;
+                let o = d * &self.own[*kind][*block] * d.transpose();
+                q += Matrix2::from_fn(|i, j| c[(i, j)] + c[(j, i)] + o[(i, j)]);
+            }
+            red[row.group] += 2.0 - weight * q.trace();
+        }
+        red
+    }
+}
