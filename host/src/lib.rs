@@ -21,5 +21,6 @@ pub mod residuals;
 pub mod scan;
 pub mod simulate;
 pub mod system;
+pub mod system_bench;
 
 pub use deltaz_calib::{bundle, compare, projector_calibration, reconstruct, resection};

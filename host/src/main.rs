@@ -208,7 +208,8 @@ enum Command {
         #[command(subcommand)]
         what: ExportWhat,
     },
-    /// Timings: camera calibration of the paper scenario and of a large network.
+    /// Timings: camera calibration and the whole-system adjustment of the paper scenario and of
+    /// a large network (with five plates of 440 dots).
     Bench {
         /// Images of the large network, 2 to 5,000.
         #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(2..=5_000))]
@@ -1230,6 +1231,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     "correlations": file.correlations.len(),
                 }));
             }
+            let progress = output.progress("adjusting the whole systems".into());
+            let (system_text, system_runs) = deltaz_host::system_bench::run(images, targets)?;
+            progress.finish_and_clear();
+            text += &system_text;
+            runs.extend(system_runs);
             output.result(&text, &serde_json::json!({ "runs": runs }))?;
         }
     }

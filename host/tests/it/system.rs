@@ -9,11 +9,11 @@ use deltaz_host::accuracy::{
     system_against_truth,
 };
 use deltaz_host::camera_calibration::camera_prior;
-use deltaz_host::simulate::{simulate, Scenario};
+use deltaz_host::simulate::{simulate, Scenario, Simulation};
 use deltaz_shared::rig::Method;
 use nalgebra::Vector3;
 
-/// What one geometry's Monte Carlo measured.
+/// What one geometry's Monte Carlo measured of one adjustment.
 struct Honesty {
     /// RMS over seeds of (centre error / σ) per camera axis.
     centre: Vector3<f64>,
@@ -25,32 +25,109 @@ struct Honesty {
     scatter_over_floor: Vector3<f64>,
     /// Mean over seeds of the unseen plate's mean error, in standard errors per axis.
     datum: Vector3<f64>,
-    /// Mean estimated σ of the plate targets, the dots and (joint) the field targets / the
-    /// simulated noise.
-    sigma0: [f64; 3],
+    /// Mean estimated σ / the simulated noise of the plate targets, the dots and (joint only)
+    /// the field targets.
+    sigma0: [Option<f64>; 3],
     /// The worst seed's |σ0 / noise − 1| of the dots and (joint) the field targets.
     worst: f64,
-    /// Rays on one plate and images left out, per seed (the first seed's).
+    /// Rays on one plate (the first seed's).
     single_plane: usize,
     /// RMS over seeds of (adjusted inner parameter error / σ): f, cx, cy, k1 (printed).
     inner: [f64; 4],
 }
 
-/// How the camera enters the adjustment.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Camera {
-    /// Calibrated first; its calibration a prior.
-    Sequential,
-    /// Its field images in the same adjustment.
-    Joint,
+/// The sums of one adjustment over the seeds.
+#[derive(Default)]
+struct Tally {
+    centre: Vector3<f64>,
+    points: Vector3<f64>,
+    err2: Vector3<f64>,
+    floor2: Vector3<f64>,
+    scatter2: Vector3<f64>,
+    n_points: usize,
+    means: Vec<Vector3<f64>>,
+    sigma0: [Option<f64>; 3],
+    worst: f64,
+    single_plane: Option<usize>,
+    inner2: [f64; 4],
+}
+
+impl Tally {
+    /// One seed's adjustment against the truth (`noise` the simulated image σ, px).
+    fn add(&mut self, sim: &Simulation, adj: &SystemAdjustment, held_out: usize, noise: f64) {
+        self.single_plane.get_or_insert(adj.single_plane.len());
+        let truth = deltaz_calib::residual::inner_to_array(&sim.truth.camera.inner.into());
+        let est = deltaz_calib::residual::inner_to_array(&adj.model.inner);
+        for (slot, &k) in adj.model.inner_free.iter().enumerate().take(4) {
+            let sd = adj.model.core_covariance[(slot, slot)].sqrt();
+            self.inner2[slot] += ((est[k] - truth[k]) / sd).powi(2);
+        }
+        let c = Vector3::from(sim.truth.projector.centre_camera);
+        self.centre += (adj.model.centre - c)
+            .component_div(&adj.model.centre_sigma())
+            .map(|v| v * v);
+        let cmp = system_against_truth(sim, adj, held_out, Method::ClosestApproach, Frame::Camera)
+            .unwrap();
+        let mut mean = Vector3::zeros();
+        for p in &cmp {
+            let e = &p.error;
+            let s = (p.image + p.calibration).diagonal().map(f64::sqrt);
+            self.points += e.component_div(&s).map(|v| v * v);
+            self.err2 += e.map(|v| v * v);
+            self.floor2 += p.image.diagonal();
+            mean += e;
+        }
+        self.n_points += cmp.len();
+        let mean = mean / cmp.len() as f64;
+        for p in &cmp {
+            self.scatter2 += (p.error - mean).map(|v| v * v);
+        }
+        self.means.push(mean);
+        let groups = [
+            Some(adj.sigma_targets_px),
+            Some(adj.model.sigma_dots_px),
+            adj.sigma_field_px,
+        ];
+        for (g, (sum, sigma)) in self.sigma0.iter_mut().zip(groups).enumerate() {
+            if let Some(ratio) = sigma.map(|s| s / noise) {
+                *sum = Some(sum.unwrap_or(0.0) + ratio);
+                if g > 0 {
+                    self.worst = self.worst.max((ratio - 1.0).abs());
+                }
+            }
+        }
+    }
+
+    fn finish(self) -> Honesty {
+        let n = self.means.len() as f64;
+        let grand = self.means.iter().sum::<Vector3<f64>>() / n;
+        let spread = (self
+            .means
+            .iter()
+            .map(|m| (m - grand).map(|v| v * v))
+            .sum::<Vector3<f64>>()
+            / (n - 1.0))
+            .map(f64::sqrt);
+        Honesty {
+            centre: (self.centre / n).map(f64::sqrt),
+            points: (self.points / self.n_points as f64).map(f64::sqrt),
+            error_over_floor: self.err2.component_div(&self.floor2).map(f64::sqrt),
+            scatter_over_floor: self.scatter2.component_div(&self.floor2).map(f64::sqrt),
+            datum: grand.component_div(&(spread / n.sqrt())),
+            sigma0: self.sigma0.map(|s| s.map(|v| v / n)),
+            worst: self.worst,
+            single_plane: self.single_plane.unwrap_or(0),
+            inner: self.inner2.map(|v| (v / n).sqrt()),
+        }
+    }
 }
 
 /// Joint against sequential on the same data, in units of the joint σ: RMS and largest |Δ/σ|
 /// over seeds of the projector centre (per axis) and of f, cx, cy, k1.
 #[derive(Debug, Default)]
 struct Agreement {
-    centre2: Vector3<f64>,
-    inner2: [f64; 4],
+    centre: Vector3<f64>,
+    inner: [f64; 4],
     worst: f64,
 }
 
@@ -58,7 +135,7 @@ impl Agreement {
     fn add(&mut self, joint: &SystemAdjustment, sequential: &SystemAdjustment) {
         let (j, s) = (&joint.model, &sequential.model);
         let dc = (j.centre - s.centre).component_div(&j.centre_sigma());
-        self.centre2 += dc.map(|v| v * v);
+        self.centre += dc.map(|v| v * v);
         self.worst = self.worst.max(dc.amax());
         let (ij, is) = (
             deltaz_calib::residual::inner_to_array(&j.inner),
@@ -66,123 +143,55 @@ impl Agreement {
         );
         for (slot, &k) in j.inner_free.iter().enumerate().take(4) {
             let z = (ij[k] - is[k]) / j.core_covariance[(slot, slot)].sqrt();
-            self.inner2[slot] += z * z;
+            self.inner[slot] += z * z;
             self.worst = self.worst.max(z.abs());
         }
     }
+
+    /// The sums over `n` seeds made RMS.
+    fn finish(mut self, n: f64) -> Self {
+        self.centre = (self.centre / n).map(f64::sqrt);
+        self.inner = self.inner.map(|v| (v / n).sqrt());
+        self
+    }
 }
 
-fn monte_carlo(
-    scenario: &Scenario,
-    held_out: usize,
-    seeds: u64,
-    camera: Camera,
-) -> (Honesty, Agreement) {
+/// Per seed: the camera by bundle adjustment, then the system adjusted sequentially (the
+/// camera's calibration a prior) and jointly (its field images in the same adjustment), the
+/// plate image `held_out` left out of both.
+fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> ([Honesty; 2], Agreement) {
+    let noise = scenario.noise.image_sigma_px;
+    let (mut sequential, mut joint) = (Tally::default(), Tally::default());
     let mut agreement = Agreement::default();
-    let truth_px = scenario.noise.image_sigma_px;
-    let (mut centre, mut points, mut err2, mut floor2) = (
-        Vector3::zeros(),
-        Vector3::zeros(),
-        Vector3::zeros(),
-        Vector3::zeros(),
-    );
-    let mut scatter2 = Vector3::zeros();
-    let mut n_points = 0usize;
-    let mut means = Vec::new();
-    let (mut targets, mut dots, mut field, mut worst) = (0.0, 0.0, 0.0, 0.0_f64);
-    let mut single_plane = 0;
-    let mut inner2 = [0.0; 4];
-    let truth_inner = deltaz_calib::residual::inner_to_array(&scenario.camera.inner.into());
     for seed in 0..seeds {
         let sim = simulate(scenario, 1000 + seed);
         let cal = bundle_camera(&sim).unwrap();
         let prior = Some(camera_prior(&cal));
-        let (sequential, left_out) =
+        let (seq, left_out) =
             adjust_simulation(&sim, &cal.problem.inner, prior, false, Some(held_out)).unwrap();
         assert!(left_out.is_empty(), "seed {seed}: {left_out:?}");
-        let adj = match camera {
-            Camera::Sequential => sequential,
-            Camera::Joint => {
-                let (joint, _) =
-                    adjust_simulation_joint(&sim, &cal, false, Some(held_out)).unwrap();
-                agreement.add(&joint, &sequential);
-                let f = joint.sigma_field_px.unwrap() / truth_px;
-                field += f;
-                worst = worst.max((f - 1.0).abs());
-                joint
-            }
-        };
-        if seed == 0 {
-            single_plane = adj.single_plane.len();
-        }
-        let est = deltaz_calib::residual::inner_to_array(&adj.model.inner);
-        for (slot, &k) in adj.model.inner_free.iter().enumerate().take(4) {
-            let sd = adj.model.core_covariance[(slot, slot)].sqrt();
-            inner2[slot] += ((est[k] - truth_inner[k]) / sd).powi(2);
-        }
-        let c = Vector3::from(sim.truth.projector.centre_camera);
-        centre += (adj.model.centre - c)
-            .component_div(&adj.model.centre_sigma())
-            .map(|v| v * v);
-        let cmp =
-            system_against_truth(&sim, &adj, held_out, Method::ClosestApproach, Frame::Camera)
-                .unwrap();
-        let mut mean = Vector3::zeros();
-        for p in &cmp {
-            let e = &p.error;
-            let s = (p.image + p.calibration).diagonal().map(f64::sqrt);
-            points += e.component_div(&s).map(|v| v * v);
-            err2 += e.map(|v| v * v);
-            floor2 += p.image.diagonal();
-            mean += e;
-        }
-        n_points += cmp.len();
-        let mean = mean / cmp.len() as f64;
-        for p in &cmp {
-            scatter2 += (p.error - mean).map(|v| v * v);
-        }
-        means.push(mean);
-        targets += adj.sigma_targets_px / truth_px;
-        dots += adj.model.sigma_dots_px / truth_px;
-        worst = worst.max((adj.model.sigma_dots_px / truth_px - 1.0).abs());
+        let (one, _) = adjust_simulation_joint(&sim, &cal, false, Some(held_out)).unwrap();
+        sequential.add(&sim, &seq, held_out, noise);
+        joint.add(&sim, &one, held_out, noise);
+        agreement.add(&one, &seq);
     }
-    let n = seeds as f64;
-    agreement.centre2 = (agreement.centre2 / n).map(f64::sqrt);
-    agreement.inner2 = agreement.inner2.map(|v| (v / n).sqrt());
-    let grand = means.iter().sum::<Vector3<f64>>() / n;
-    let spread = (means
-        .iter()
-        .map(|m| (m - grand).map(|v| v * v))
-        .sum::<Vector3<f64>>()
-        / (n - 1.0))
-        .map(f64::sqrt);
-    let honesty = Honesty {
-        centre: (centre / n).map(f64::sqrt),
-        points: (points / n_points as f64).map(f64::sqrt),
-        error_over_floor: err2.component_div(&floor2).map(f64::sqrt),
-        scatter_over_floor: scatter2.component_div(&floor2).map(f64::sqrt),
-        datum: grand.component_div(&(spread / n.sqrt())),
-        sigma0: [targets / n, dots / n, field / n],
-        worst,
-        single_plane,
-        inner: inner2.map(|v| (v / n).sqrt()),
-    };
-    (honesty, agreement)
+    (
+        [sequential.finish(), joint.finish()],
+        agreement.finish(seeds as f64),
+    )
 }
 
 fn check(name: &str, h: &Honesty) {
     println!(
         "{name}: RMS(e/σ) centre {:.2?}, points {:.2?}; error/floor {:.2?}, scatter/floor \
-         {:.2?}; datum {:.2?} SE; σ0/noise plate targets {:.3} dots {:.3} field targets {:.3} \
-         (worst seed {:.3}); {} rays on one plate; inner f, cx, cy, k1 {:.2?}",
+         {:.2?}; datum {:.2?} SE; σ0/noise plate targets, dots, field targets {:.3?} (worst \
+         seed {:.3}); {} rays on one plate; inner f, cx, cy, k1 {:.2?}",
         h.centre.as_slice(),
         h.points.as_slice(),
         h.error_over_floor.as_slice(),
         h.scatter_over_floor.as_slice(),
         h.datum.as_slice(),
-        h.sigma0[0],
-        h.sigma0[1],
-        h.sigma0[2],
+        h.sigma0,
         h.worst,
         h.single_plane,
         h.inner
@@ -202,67 +211,47 @@ fn check(name: &str, h: &Honesty) {
         );
         assert!(h.datum[a].abs() <= 2.0, "{name} datum axis {a}");
     }
-    assert!((h.sigma0[0] - 1.0).abs() < 0.1, "{name} targets σ0");
-    assert!((h.sigma0[1] - 1.0).abs() < 0.1, "{name} dots σ0");
-    assert!(h.worst < 0.1, "{name} worst dots σ0");
+    for (g, sigma) in h.sigma0.iter().enumerate() {
+        if let Some(ratio) = sigma {
+            assert!((ratio - 1.0).abs() < 0.1, "{name} group {g} σ0 {ratio}");
+        }
+    }
+    assert!(h.worst < 0.1, "{name} worst σ0");
 }
 
-/// The joint adjustment's checks: those of [`check`], the field targets' σ0 within 10 %, and the
-/// joint solution within its σ of the sequential one (the same data, the camera's information
-/// used once more): RMS of Δ/σ below 0.5 per quantity, no seed beyond 1.5σ.
-fn check_joint(name: &str, h: &Honesty, a: &Agreement) {
-    check(name, h);
+/// Both adjustments of one geometry: each honest ([`check`]), the joint one with the field
+/// targets' σ0, and the joint solution within its σ of the sequential one (the same data, the
+/// plates' information on the camera used once more): RMS of Δ/σ below 0.5 for the centre per
+/// axis and f, cx, cy, k1, no seed beyond 1.5σ.
+fn check_both(name: &str, [sequential, joint]: &[Honesty; 2], agreement: &Agreement) {
+    check(name, sequential);
+    check(&format!("{name} joint"), joint);
+    assert!(joint.sigma0[2].is_some(), "{name}: no field σ0");
+    let a = agreement;
     println!(
         "{name}: joint − sequential, RMS(Δ/σ) centre {:.2?}, f, cx, cy, k1 {:.2?}, worst {:.2}",
-        a.centre2.as_slice(),
-        a.inner2,
+        a.centre.as_slice(),
+        a.inner,
         a.worst
     );
-    assert!((h.sigma0[2] - 1.0).abs() < 0.1, "{name} field targets σ0");
-    for v in a.centre2.iter().chain(&a.inner2) {
+    for v in a.centre.iter().chain(&a.inner) {
         assert!(*v < 0.5, "{name}: joint against sequential {v}");
     }
     assert!(a.worst < 1.5, "{name}: worst {}", a.worst);
 }
 
-/// The desk rig, 50 seeds at 0.5 px, a calibrated camera: the stated σ of the projector centre
-/// and of the points on the held-out plate are honest (RMS of normalised errors 0.8-1.25 per
-/// axis), the point error is within 1.25 × the image-noise floor, the held-out plate shows no
-/// bias in the camera system (within 2 standard errors), σ0 per group within 10 %, and the
-/// edge rays that fall on one plate are kept (central model).
+/// The desk rig, 50 seeds at 0.5 px, a calibrated camera, both sequentially and jointly (the
+/// field images in the same adjustment, `calibrate system`): the stated σ of the projector
+/// centre and of the points on the held-out plate are honest (RMS of normalised errors 0.8-1.25
+/// per axis), the point error is within 1.25 × the image-noise floor, the held-out plate shows
+/// no bias in the camera system (within 2 standard errors), σ0 per group (field targets, plate
+/// targets, dots) within 10 %, the joint solution within σ of the sequential one, and the edge
+/// rays that fall on one plate are kept (central model).
 #[test]
 fn desk_rig_states_honest_sigma() {
-    let (h, _) = monte_carlo(
-        &Scenario::desk(),
-        Scenario::DESK_HELD_OUT,
-        50,
-        Camera::Sequential,
-    );
-    check("desk", &h);
-    assert!(h.single_plane > 0);
-}
-
-/// The desk rig, 50 seeds, the camera's field images and the plates in one adjustment
-/// (`calibrate system`): honest as the sequential adjustment, σ0 of all three groups (field
-/// targets, plate targets, dots) within 10 % of the simulated noise, and within σ of the
-/// sequential solution.
-#[test]
-fn desk_rig_joint_adjustment_states_honest_sigma() {
-    let (h, a) = monte_carlo(
-        &Scenario::desk(),
-        Scenario::DESK_HELD_OUT,
-        50,
-        Camera::Joint,
-    );
-    check_joint("desk joint", &h, &a);
-    assert!(h.single_plane > 0);
-}
-
-/// The paper's rig jointly, 100 seeds (as the sequential test, for cy): as for the desk rig.
-#[test]
-fn paper_rig_joint_adjustment_states_honest_sigma() {
-    let (h, a) = monte_carlo(&Scenario::paper_five_plates(), 5, 100, Camera::Joint);
-    check_joint("paper joint", &h, &a);
+    let (h, a) = monte_carlo(&Scenario::desk(), Scenario::DESK_HELD_OUT, 50);
+    check_both("desk", &h, &a);
+    assert!(h[0].single_plane > 0 && h[1].single_plane > 0);
 }
 
 /// The paper's rig (five plates, a sixth held out), 100 seeds: as for the desk rig. The Y errors
@@ -271,8 +260,8 @@ fn paper_rig_joint_adjustment_states_honest_sigma() {
 /// 100 seeds keep that sampling scatter near ±0.07.
 #[test]
 fn paper_rig_states_honest_sigma() {
-    let (h, _) = monte_carlo(&Scenario::paper_five_plates(), 5, 100, Camera::Sequential);
-    check("paper", &h);
+    let (h, a) = monte_carlo(&Scenario::paper_five_plates(), 5, 100);
+    check_both("paper", &h, &a);
 }
 
 /// The plate frame as the points' frame, on both geometries (10 seeds each). With the datum
