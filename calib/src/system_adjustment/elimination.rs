@@ -344,3 +344,164 @@ impl Covariance {
         red
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Uniform numbers in (−1, 1) from a fixed linear congruential sequence.
+    struct Numbers(u64);
+
+    impl Numbers {
+        fn next(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        }
+    }
+
+    /// The reduced solution, the covariance of every part and the redundancy numbers equal
+    /// those of the full normal equations inverted densely, on a small problem with two kinds
+    /// (blocks of 2, 4 and 3 parameters), global-only observations and priors on both parts.
+    #[test]
+    fn schur_complement_matches_the_dense_solution() {
+        let mut rand = Numbers(9);
+        let n = 7;
+        let kinds = [
+            Kind::new(n, vec![0, 1, 2, 3], vec![2, 4]),
+            Kind::new(n, vec![0, 4, 5, 6], vec![3, 3, 3]),
+        ];
+        let width: usize = kinds.iter().map(Kind::width).sum();
+        let sigma = [0.7, 1.3, 0.4];
+        let mut rows = Vec::new();
+        let mut full_rows = Vec::new();
+        for (k, kind) in kinds.iter().enumerate() {
+            let base = n + kinds[..k].iter().map(Kind::width).sum::<usize>();
+            for block in 0..kind.sizes.len() {
+                let m = kind.sizes[block];
+                for _ in 0..3 * m {
+                    let mut global = Vec::new();
+                    for &g in &kind.rows {
+                        if rand.next() > -0.5 {
+                            global.push((g, Vector2::new(rand.next(), rand.next())));
+                        }
+                    }
+                    let d = DMatrix::from_fn(2, m, |_, _| rand.next());
+                    let mut a = DMatrix::zeros(2, n + width);
+                    for (g, j) in &global {
+                        a.view_mut((0, *g), (2, 1)).copy_from(j);
+                    }
+                    a.view_mut((0, base + kind.offsets[block]), (2, m))
+                        .copy_from(&d);
+                    let group = k + 1;
+                    full_rows.push((a, group));
+                    rows.push(Linear {
+                        value: Vector2::new(rand.next(), rand.next()),
+                        global,
+                        local: Some(Local { kind: k, block, d }),
+                        group,
+                    });
+                }
+            }
+        }
+        for _ in 0..3 * n {
+            let mut global = Vec::new();
+            for g in 0..n {
+                if rand.next() > 0.0 {
+                    global.push((g, Vector2::new(rand.next(), rand.next())));
+                }
+            }
+            let mut a = DMatrix::zeros(2, n + width);
+            for (g, j) in &global {
+                a.view_mut((0, *g), (2, 1)).copy_from(j);
+            }
+            full_rows.push((a, 0));
+            rows.push(Linear {
+                value: Vector2::new(rand.next(), rand.next()),
+                global,
+                local: None,
+                group: 0,
+            });
+        }
+        let values: Vec<Vector2<f64>> = rows.iter().map(|r| r.value).collect();
+        let mut normal = Normal::new(n, &kinds, rows, &sigma);
+        let p = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 3.0]);
+        let d = DVector::from_column_slice(&[0.2, -0.1]);
+        normal.global_prior(&[1, 2], &p, &d);
+        let dl = DVector::from_column_slice(&[0.3, 0.1, -0.2]);
+        normal.local_prior(1, 0, 5.0, &dl);
+
+        // The full normal equations.
+        let mut full = DMatrix::zeros(n + width, n + width);
+        let mut rhs = DVector::zeros(n + width);
+        for ((a, group), v) in full_rows.iter().zip(&values) {
+            let w = 1.0 / (sigma[*group] * sigma[*group]);
+            full += a.transpose() * a * w;
+            rhs -= a.transpose() * v * w;
+        }
+        let at = [1, 2];
+        for (i, &gi) in at.iter().enumerate() {
+            rhs[gi] -= (&p * &d)[i];
+            for (j, &gj) in at.iter().enumerate() {
+                full[(gi, gj)] += p[(i, j)];
+            }
+        }
+        let local0 = n + kinds[0].width();
+        for a in 0..3 {
+            full[(local0 + a, local0 + a)] += 5.0;
+            rhs[local0 + a] -= 5.0 * dl[a];
+        }
+        let inverse = full.clone().try_inverse().unwrap();
+        let solution = &inverse * &rhs;
+
+        let reduced = reduce(&normal, &kinds).unwrap();
+        let dg = reduced.s.clone().cholesky().unwrap().solve(&reduced.b);
+        let steps = reduced.back_substitute(&normal, &kinds, &dg);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + b.abs());
+        for g in 0..n {
+            assert!(close(dg[g], solution[g]), "global {g}");
+        }
+        let cov = covariance(&kinds, &reduced).unwrap();
+        let all: Vec<usize> = (0..n).collect();
+        for (k, kind) in kinds.iter().enumerate() {
+            let base = n + kinds[..k].iter().map(Kind::width).sum::<usize>();
+            for block in 0..kind.sizes.len() {
+                let (off, m) = (base + kind.offsets[block], kind.sizes[block]);
+                for a in 0..m {
+                    assert!(close(steps[k][block][a], solution[off + a]));
+                }
+                let (own, cross) = cov.block(&kinds, k, block, &all);
+                for a in 0..m {
+                    for b in 0..m {
+                        assert!(close(own[(a, b)], inverse[(off + a, off + b)]));
+                    }
+                    for g in 0..n {
+                        // Zero where the global parameter is not a row of the kind.
+                        let expect = if kind.row_of[g].is_some() {
+                            inverse[(off + a, g)]
+                        } else {
+                            0.0
+                        };
+                        assert!(close(cross[(a, g)], expect), "kind {k} block {block}");
+                    }
+                }
+            }
+        }
+        for a in 0..n {
+            for b in 0..n {
+                assert!(close(cov.s_inv[(a, b)], inverse[(a, b)]));
+            }
+        }
+        let mut red = [0.0; GROUPS];
+        for (a, group) in &full_rows {
+            let w = 1.0 / (sigma[*group] * sigma[*group]);
+            red[*group] += 2.0 - w * (a * &inverse * a.transpose()).trace();
+        }
+        let got = cov.redundancy(&normal, &kinds, &sigma);
+        for g in 0..GROUPS {
+            assert!(close(got[g], red[g]), "group {g}: {} vs {}", got[g], red[g]);
+        }
+    }
+}
