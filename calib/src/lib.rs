@@ -9,6 +9,7 @@
 
 pub mod bundle;
 pub mod compare;
+pub mod dense;
 pub mod input;
 pub mod projector_calibration;
 pub mod reconstruct;

@@ -344,7 +344,7 @@ pub fn solve(problem: &mut Problem, options: &SolverOptions) -> Result<Solution,
         }
     }
     let s = reduce(&normal, 0.0)?.s;
-    let inverse = s.cholesky().ok_or(SolveError::Singular)?.inverse();
+    let inverse = crate::dense::spd_inverse(&s.cholesky().ok_or(SolveError::Singular)?);
     let redundancy = equations - unknowns;
     let sigma0 = (normal.cost / redundancy as f64).sqrt();
     Ok(Solution {

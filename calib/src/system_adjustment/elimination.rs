@@ -263,12 +263,8 @@ pub(super) struct Covariance {
 
 /// The covariance of the reduced system and of every block.
 pub(super) fn covariance(kinds: &[Kind], reduced: &Reduced) -> Result<Covariance, SystemError> {
-    let s_inv = reduced
-        .s
-        .clone()
-        .cholesky()
-        .ok_or(SystemError::Singular)?
-        .inverse();
+    let s_inv =
+        crate::dense::spd_inverse(&reduced.s.clone().cholesky().ok_or(SystemError::Singular)?);
     let mut cross = Vec::with_capacity(kinds.len());
     let mut own = Vec::with_capacity(kinds.len());
     for ((kind, y), v_inv) in kinds.iter().zip(&reduced.y).zip(&reduced.v_inv) {
