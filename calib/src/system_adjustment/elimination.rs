@@ -463,10 +463,10 @@ mod tests {
         let all: Vec<usize> = (0..n).collect();
         for (k, kind) in kinds.iter().enumerate() {
             let base = n + kinds[..k].iter().map(Kind::width).sum::<usize>();
-            for block in 0..kind.sizes.len() {
+            for (block, step) in steps[k].iter().enumerate() {
                 let (off, m) = (base + kind.offsets[block], kind.sizes[block]);
                 for a in 0..m {
-                    assert!(close(steps[k][block][a], solution[off + a]));
+                    assert!(close(step[a], solution[off + a]));
                 }
                 let (own, cross) = cov.block(&kinds, k, block, &all);
                 for a in 0..m {
