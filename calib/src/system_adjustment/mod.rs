@@ -1,7 +1,8 @@
 //! The whole-system adjustment: the camera's inner orientation, the exterior orientation of every
-//! plate image, the plate's control coordinates, the projector centre and its rays in one
-//! least-squares problem, with the image noise of each observation group estimated (variance
-//! component estimation) and the covariance of everything a reconstructed point depends on.
+//! field and plate image, the control coordinates of field and plate, the projector centre and
+//! its rays in one least-squares problem, with the image noise of each observation group
+//! estimated (variance component estimation) and the covariance of everything a reconstructed
+//! point depends on.
 //!
 //! Datum: the camera system of the instrument (x right, y up, z backwards). Each plate image k
 //! has the pose (R_k, X0_k) of the camera in the plate's frame, so the plate surface Z = 0 is the
@@ -12,6 +13,8 @@
 //! ```
 //!
 //! and its dot in image k is the camera's image of the line's intersection with that plane.
+//! The field images' poses and targets are in the field's own frame, that of its control (of a
+//! free network: the bundle's datum, whose fixed pose parameters stay fixed here).
 //! Observations and weights: plate targets, dots and field targets in the image (σ per group,
 //! estimated), control coordinates of the plate and the field (their σ), and where the camera
 //! comes from ([`CameraSource`]): jointly from its field images in the same adjustment
