@@ -10,13 +10,14 @@
 //!    spacing errors are adjusted within that σ instead of being taken as exact.
 
 use crate::bundle::{self, CalibrationOptions};
-use crate::camera_calibration::{build_problem, camera_file};
+use crate::camera_calibration::{build_problem, camera_file, camera_prior};
 use crate::io::camera_file::CameraFile;
 use crate::io::control::ControlPoint;
 use crate::io::observations::Observation;
 use crate::measure::board::{homography, Board};
 use crate::measure::{measure_images, MeasureParams};
 use anyhow::{bail, Context, Result};
+use deltaz_calib::system_adjustment::CameraPrior;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use nalgebra::{Matrix3, Vector2};
 use std::path::{Path, PathBuf};
@@ -26,6 +27,8 @@ use std::path::{Path, PathBuf};
 pub struct BoardCalibration {
     /// The calibrated camera.
     pub file: CameraFile,
+    /// The free inner parameters and their covariance (mm, as in `file`).
+    pub inner_covariance: CameraPrior,
     /// The labelled circles of every view.
     pub observations: Vec<Observation>,
     /// The board's circles as control.
@@ -177,6 +180,7 @@ pub fn calibrate_board(
     let calibration = bundle::calibrate(problem, options)?;
     Ok(BoardCalibration {
         file: camera_file(&calibration, &observations),
+        inner_covariance: camera_prior(&calibration),
         observations,
         control,
         start_f_px,

@@ -124,7 +124,10 @@ enum Command {
         gravity: bool,
         /// Find a circle-grid board, `circles:COLSxROWS[:SPACING_MM]` or
         /// `acircles:COLSxROWS[:SPACING_MM]` (OpenCV's pattern size): its circles are written
-        /// as points `rIcJ` (row I, column J), the other targets left out.
+        /// as points `rIcJ` (row I, column J), the other targets left out. The order is
+        /// OpenCV's: the board seen from its front (from the column direction to the row
+        /// direction clockwise in the image), then of the board's rotations onto itself the one
+        /// with column 0 at the left (and row 0 at the top when upright).
         #[arg(long, conflicts_with = "system")]
         board: Option<measure::board::Board>,
         /// Identify the projected dots with this calibrated system.json: identified dots are

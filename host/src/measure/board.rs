@@ -10,10 +10,15 @@
 //!
 //! # Order
 //! Circles are named `rIcJ` and listed row-major (OpenCV's index i · COLS + j). A grid is
-//! symmetric under some rotations (and the labels of a mirrored board are those of a rotated one),
-//! so the labelling is fixed by the image: of the board's symmetries, the one whose column
-//! direction points most along the image's +col axis and whose row direction then points along
-//! +row ("row 0 at the top, column 0 at the left" for a board held about upright).
+//! symmetric under some rotations and reflections, so the labelling is fixed by the image, as
+//! OpenCV's `findCirclesGrid` fixes it:
+//! 1. the board is seen from its front: turning from the column direction (+j) to the row
+//!    direction (+i) is clockwise in the image, as from +col to +row (the board's x × y points
+//!    away from the camera). This alone fixes an asymmetric grid with an odd number of rows,
+//!    whose only symmetry is a reflection (OpenCV's "clockwise" test on its outside corners);
+//! 2. of the rotations left, the one whose column direction points most along +col, then the
+//!    one whose row direction points along +row ("row 0 at the top, column 0 at the left" for a
+//!    board held about upright).
 //!
 //! # Method
 //! The targets of similar size are walked as a lattice ([`super::grid::walk_grid`]) from the
@@ -285,16 +290,12 @@ impl Board {
         let fewest = missing.iter().copied().min().unwrap_or(0);
         let mut kept = missing.iter();
         candidates.retain(|_| kept.next() == Some(&fewest));
-        // The board's symmetries give equal placements: the image's orientation picks one.
-        // The board's directions at the same place for every placement: the board point under
-        // the centroid of the circles.
-        let oriented = |points: &[BoardPoint]| -> f64 {
-            let Some(h) = self.homography(points, centres) else {
-                return f64::NEG_INFINITY;
-            };
-            let Some(inverse) = h.try_inverse() else {
-                return f64::NEG_INFINITY;
-            };
+        // The board's symmetries give equal placements: the image's orientation picks one (see
+        // the module's doc), by the board's directions at the same place for every placement:
+        // the board point under the centroid of the circles. Greater is preferred.
+        let oriented = |points: &[BoardPoint]| -> Option<Orientation> {
+            let h = self.homography(points, centres)?;
+            let inverse = h.try_inverse()?;
             let at = |x: f64, y: f64| {
                 let v = h * Vector3::new(x, y, 1.0);
                 Vector2::new(v.x / v.z, v.y / v.z)
@@ -308,12 +309,16 @@ impl Board {
             let (x0, y0) = (b.x / b.z, b.y / b.z);
             let col_dir = (at(x0 + 1.0, y0) - m).normalize();
             let row_dir = (at(x0, y0 + 1.0) - m).normalize();
-            // Column direction first (to 1e-4), then the row direction's sense.
-            (2e4 * col_dir.x).round() / 1e4 + 1e-3 * row_dir.y.signum()
+            // Seen from the front; the column direction (to 1e-3); the row direction's sense.
+            Some((
+                col_dir.perp(&row_dir) > 0.0,
+                (1e3 * col_dir.x).round() as i64,
+                row_dir.y > 0.0,
+            ))
         };
-        let mut scored: Vec<(f64, Vec<BoardPoint>)> =
+        let mut scored: Vec<(Option<Orientation>, Vec<BoardPoint>)> =
             candidates.into_iter().map(|c| (oriented(&c), c)).collect();
-        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        scored.sort_by_key(|s| std::cmp::Reverse(s.0));
         let Some((score, mut points)) = scored.first().cloned() else {
             return Ok(None);
         };
@@ -321,7 +326,7 @@ impl Board {
         if scored
             .iter()
             .skip(1)
-            .any(|(s, p)| (*s - score).abs() < 1e-9 && !same_labels(p, &points))
+            .any(|(s, p)| *s == score && !same_labels(p, &points))
         {
             bail!(
                 "the {}x{} circle grid is cut off so that its position on the board is ambiguous",
@@ -337,7 +342,10 @@ impl Board {
     fn homography(&self, points: &[BoardPoint], centres: &[Vector2<f64>]) -> Option<Matrix3<f64>> {
         let pairs: Vec<(Vector2<f64>, Vector2<f64>)> = points
             .iter()
-            .map(|p| (Vector2::new(p.col as f64, p.row as f64), centres[p.target]))
+            .map(|p| {
+                let (x, y) = self.lattice(p.row, p.col);
+                (Vector2::new(x as f64, y as f64), centres[p.target])
+            })
             .collect();
         homography(&pairs)
     }
@@ -375,6 +383,11 @@ impl Board {
             .count()
     }
 }
+
+/// How a placement of the board faces the image, greater preferred (see the module's doc): seen
+/// from its front, its column direction's x component (in thousandths), its row direction
+/// pointing down the image.
+type Orientation = (bool, i64, bool);
 
 /// The 8 rotations and reflections of the integer lattice, as [a, b, c, d]: (x, y) ↦
 /// (a x + b y, c x + d y).
@@ -492,18 +505,28 @@ mod tests {
     use super::*;
 
     /// A synthetic board seen through a homography, with clutter, whole or with part cut off by
-    /// the image border: every circle labelled with its own (row, col), clutter never.
+    /// the image border, upright or turned about the image centre: every circle labelled with
+    /// its own (row, col), clutter never. (Turned only the asymmetric board of odd rows, whose
+    /// labels no rotation changes: its one symmetry is a reflection.)
     #[test]
     fn labels_synthetic_boards() {
-        // (A cut-off asymmetric board is not yet labelled reliably: not tested.)
-        for (spec, cut) in [
-            ("circles:7x5:20", 0.0),
-            ("acircles:4x11:10", 0.0),
-            ("circles:7x5:20", 150.0),
-            ("circles:5x4:20", 135.0),
+        for (spec, cut, turn) in [
+            ("circles:7x5:20", 0.0, 0.0),
+            ("acircles:4x11:10", 0.0, 0.0),
+            ("circles:7x5:20", 150.0, 0.0),
+            ("circles:5x4:20", 135.0, 0.0),
+            ("acircles:4x11:10", 150.0, 0.0),
+            ("acircles:4x10:10", 150.0, 0.0),
+            ("acircles:4x11:10", 0.0, 170.0),
+            ("acircles:4x11:10", 0.0, 100.0),
         ] {
             let board: Board = spec.parse().unwrap();
-            let h = Matrix3::new(1.1, 0.15, 120.0, -0.1, 0.95, 90.0, 0.0004, -0.0002, 1.0);
+            let (sin, cos) = f64::to_radians(turn).sin_cos();
+            let about_centre = Matrix3::new(1.0, 0.0, 320.0, 0.0, 1.0, 240.0, 0.0, 0.0, 1.0)
+                * Matrix3::new(cos, -sin, 0.0, sin, cos, 0.0, 0.0, 0.0, 1.0)
+                * Matrix3::new(1.0, 0.0, -320.0, 0.0, 1.0, -240.0, 0.0, 0.0, 1.0);
+            let h = about_centre
+                * Matrix3::new(1.1, 0.15, 120.0, -0.1, 0.95, 90.0, 0.0004, -0.0002, 1.0);
             let scale = 20.0 / board.spacing;
             let mut centres = Vec::new();
             let mut truth = Vec::new();
@@ -521,11 +544,12 @@ mod tests {
             centres.push(Vector2::new(130.0, 300.0));
             centres.push(Vector2::new(400.0, 20.0));
             let radii = vec![3.0; centres.len()];
-            let found = board.find(&centres, &radii, 640, 480).unwrap();
-            assert_eq!(found.len(), truth.len(), "{spec} cut {cut}");
+            let case = format!("{spec} cut {cut} turned {turn}°");
+            let found = board.find(&centres, &radii, 640, 480).expect(&case);
+            assert_eq!(found.len(), truth.len(), "{case}");
             for p in &found {
                 let t = truth.iter().find(|t| t.2 == p.target).unwrap();
-                assert_eq!((p.row, p.col), (t.0, t.1), "{spec} cut {cut}");
+                assert_eq!((p.row, p.col), (t.0, t.1), "{case}");
             }
         }
     }
