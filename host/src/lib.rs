@@ -9,6 +9,7 @@ pub mod cli;
 pub mod demo;
 pub mod device_cli;
 pub mod export;
+pub mod image_calibration;
 pub mod io;
 pub mod link;
 pub mod measure;
