@@ -20,6 +20,7 @@ use crate::ply::{encode, Encoding};
 use crate::projector_calibration::{Model, Plane, PlateImage};
 use crate::reconstruct::{covariance, reconstruct, ReconstructedPoint};
 use crate::residuals::Residual;
+use crate::simulate::objects::torso_height;
 use crate::simulate::{simulate, Scenario, Simulation};
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
@@ -55,17 +56,6 @@ pub fn measure(
         .enumerate()
         .filter_map(|(i, p)| p.ok().map(|w| (i, w.point)))
         .collect())
-}
-
-/// The torso-like surface in the 1st plate image's frame (mm): a back 1.4-1.6 m from the camera,
-/// rounded across (X), a spine groove, and a gentle lordosis along Y, on the plane Z = 200.
-pub fn torso_height(x: f64, y: f64) -> f64 {
-    let (cx, cy) = (375.0, 365.0);
-    let u = ((x - cx) / 330.0).clamp(-1.0, 1.0);
-    let across = 110.0 * (1.0 - u * u).sqrt();
-    let spine = -12.0 * (-((x - cx) / 35.0).powi(2)).exp();
-    let along = 25.0 * (std::f64::consts::PI * (y - cy) / 900.0).cos();
-    200.0 + across + spine + along
 }
 
 /// Where a true ray (global frame) meets the torso, by bisection on its parameter.

@@ -6,14 +6,14 @@
 //! covariance, with the calibration's error common to all points carried through the fits.
 
 use crate::scan::{error_at_floor, propagated, scan_frames, Instrument, Matched};
-use deltaz_calib::system_adjustment::PointShares;
 use deltaz_host::image_calibration::{calibrate_from_images, Known};
+use deltaz_host::object_accuracy::{fit_plane, fit_sphere, form, SurfaceFit};
 use deltaz_host::simulate::images::{true_rig, write_images, ImageSpec};
 use deltaz_host::simulate::objects::{
     object_dots, object_frame, plate_depth, test_objects, Object,
 };
 use deltaz_host::simulate::Scenario;
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use nalgebra::Vector3;
 use std::sync::OnceLock;
 
 /// The two geometries: the paper's, and a second with the projector 60 mm further from the
@@ -91,76 +91,15 @@ fn scanned(
     (instrument, objects, matched)
 }
 
-/// Least-squares fit of a surface with `p` parameters by Gauss-Newton on the residuals
-/// `residual(params, point) -> (distance, d distance / d params)`: the parameters, the
-/// residuals and the Jacobian.
-fn fit(
-    start: DVector<f64>,
-    points: &[Vector3<f64>],
-    residual: impl Fn(&DVector<f64>, &Vector3<f64>) -> (f64, DVector<f64>),
-) -> (DVector<f64>, DVector<f64>, DMatrix<f64>) {
-    let mut x = start;
-    let eval = |x: &DVector<f64>| {
-        let rows: Vec<_> = points.iter().map(|p| residual(x, p)).collect();
-        let r = DVector::from_iterator(rows.len(), rows.iter().map(|(d, _)| *d));
-        let j = DMatrix::from_fn(rows.len(), x.len(), |i, k| rows[i].1[k]);
-        (r, j)
-    };
-    for _ in 0..10 {
-        let (r, j) = eval(&x);
-        let step = (j.transpose() * &j)
-            .lu()
-            .solve(&(j.transpose() * r))
-            .unwrap();
-        x -= step;
-    }
-    let (r, j) = eval(&x);
-    (x, r, j)
-}
-
-/// The covariance of the points' distances along `normals` (n × n): the share of the
-/// calibration's core common to all, each point's own (image noise and its ray) on the diagonal.
-fn normal_covariance(
-    shares: &[PointShares],
-    normals: &[Vector3<f64>],
-    core: &DMatrix<f64>,
-) -> DMatrix<f64> {
-    let g = DMatrix::from_fn(shares.len(), core.nrows(), |i, k| {
-        shares[i].common.column(k).dot(&normals[i])
-    });
-    let own = DVector::from_iterator(
-        shares.len(),
-        shares
-            .iter()
-            .zip(normals)
-            .map(|(s, n)| (n.transpose() * (s.image + s.ray) * n)[0]),
-    );
-    &g * core * g.transpose() + DMatrix::from_diagonal(&own)
-}
-
-/// The expected sum of squared residuals of a least-squares fit with Jacobian `j` of
-/// observations of covariance `sigma`: tr((I − H) Σ (I − H)), H = J (JᵀJ)⁻¹ Jᵀ.
-fn expected_residual2(j: &DMatrix<f64>, sigma: &DMatrix<f64>) -> f64 {
-    let n = j.nrows();
-    let h = j * (j.transpose() * j).try_inverse().unwrap() * j.transpose();
-    let m = DMatrix::identity(n, n) - h;
-    (&m * sigma * &m).trace()
-}
-
-/// The RMS of the residuals and their floor (the expected squared residuals), over all frames:
-/// their ratio checked to be in 0.8-1.25.
-fn form_ratio(name: &str, fits: &[(DVector<f64>, f64)]) -> (f64, f64, f64) {
-    let n: usize = fits.iter().map(|(r, _)| r.len()).sum();
-    let residual2 = fits.iter().map(|(r, _)| r.norm_squared()).sum::<f64>() / n as f64;
-    let floor2 = fits.iter().map(|(_, e)| e).sum::<f64>() / n as f64;
-    let ratio = (residual2 / floor2).sqrt();
+/// The form error over all frames against its floor, their ratio checked to be in 0.8-1.25.
+fn form_ratio(name: &str, fits: &[SurfaceFit]) {
+    let figure = form(fits);
+    let ratio = figure.ratio();
     println!(
-        "{name}: {n} points, RMS {:.4} mm, floor {:.4} mm, ratio {ratio:.2}",
-        residual2.sqrt(),
-        floor2.sqrt()
+        "{name}: {} points, RMS {:.4} mm, floor {:.4} mm, ratio {ratio:.2}",
+        figure.points, figure.rms_mm, figure.floor_mm
     );
     assert!((0.8..=1.25).contains(&ratio), "{name}: RMS / floor {ratio}");
-    (residual2.sqrt(), floor2.sqrt(), ratio)
 }
 
 /// A sphere of 300 mm radius in three frames, for each geometry: the fitted radius within 3 σ
@@ -176,33 +115,18 @@ fn sphere_radius_and_form_from_images() {
 
 fn sphere(k: usize, geometry: &str, scenario: &Scenario) {
     let (instrument, objects, matched) = scanned(k, scenario, "sphere");
-    let (_, shares) = propagated(instrument, &matched);
+    let (_, points) = propagated(instrument, &matched);
     let core = instrument.core();
     let mut fits = Vec::new();
-    for ((object, frame), shares) in objects.iter().zip(&matched).zip(&shares) {
+    for (object, points) in objects.iter().zip(&points) {
         let Object::Sphere { centre, radius } = *object else {
             unreachable!()
         };
-        assert!(frame.len() > 60, "{} dots on the sphere", frame.len());
-        let points: Vec<_> = frame.iter().map(|m| m.point).collect();
-        // Start from the centroid pushed back along −Z by the truth's radius' order of magnitude.
-        let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
-        let start = DVector::from_vec(vec![mean.x, mean.y, mean.z - 100.0, 100.0]);
-        let (x, r, j) = fit(start, &points, |x, p| {
-            let d = p - Vector3::new(x[0], x[1], x[2]);
-            let n = d.normalize();
-            (
-                d.norm() - x[3],
-                DVector::from_vec(vec![-n.x, -n.y, -n.z, -1.0]),
-            )
-        });
-        let c = Vector3::new(x[0], x[1], x[2]);
-        let normals: Vec<_> = points.iter().map(|p| (p - c).normalize()).collect();
-        let sigma = normal_covariance(shares, &normals, &core);
-        // Sandwich covariance of the unweighted fit.
-        let jtj_inv = (j.transpose() * &j).try_inverse().unwrap();
-        let sigma_r = (&jtj_inv * j.transpose() * &sigma * &j * &jtj_inv)[(3, 3)].sqrt();
-        let error = x[3] - radius;
+        assert!(points.len() > 60, "{} dots on the sphere", points.len());
+        let fit = fit_sphere(points, &core).unwrap();
+        let sigma_r = fit.covariance[(3, 3)].sqrt();
+        let error = fit.params[3] - radius;
+        let c = Vector3::new(fit.params[0], fit.params[1], fit.params[2]);
         println!(
             "{geometry} sphere: radius error {error:+.4} mm, σ {sigma_r:.4} mm ({:.2} σ), centre off by {:.3} mm",
             error / sigma_r,
@@ -212,7 +136,7 @@ fn sphere(k: usize, geometry: &str, scenario: &Scenario) {
             error.abs() <= 3.0 * sigma_r,
             "radius error {error} mm, σ {sigma_r} mm"
         );
-        fits.push((r, expected_residual2(&j, &sigma)));
+        fits.push(fit);
     }
     form_ratio(&format!("{geometry} sphere form error"), &fits);
 }
@@ -228,47 +152,20 @@ fn plane_flatness_from_images() {
 
 fn flatness(k: usize, geometry: &str, scenario: &Scenario) {
     let (instrument, objects, matched) = scanned(k, scenario, "plane");
-    let (_, shares) = propagated(instrument, &matched);
+    let (_, points) = propagated(instrument, &matched);
     let core = instrument.core();
     let mut fits = Vec::new();
-    for ((object, frame), shares) in objects.iter().zip(&matched).zip(&shares) {
+    for (object, points) in objects.iter().zip(&points) {
         let Object::Plane { tilt, .. } = *object else {
             unreachable!()
         };
-        let points: Vec<_> = frame.iter().map(|m| m.point).collect();
-        let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
-        let scatter: Matrix3<f64> = points
-            .iter()
-            .map(|p| (p - mean) * (p - mean).transpose())
-            .sum();
-        let eigen = scatter.symmetric_eigen();
-        let normal = eigen
-            .eigenvectors
-            .column(eigen.eigenvalues.imin())
-            .into_owned();
+        let (fit, normal) = fit_plane(points, &core).unwrap();
         let truth = Vector3::new(tilt.sin(), 0.0, tilt.cos());
         assert!(
             normal.dot(&truth).abs() > 0.99999,
             "normal {normal}, truth {truth}"
         );
-        let r =
-            DVector::from_iterator(points.len(), points.iter().map(|p| (p - mean).dot(&normal)));
-        // The fit's Jacobian: the plane's offset and its two tilts (in-plane coordinates).
-        let (u, w) = (
-            eigen
-                .eigenvectors
-                .column((eigen.eigenvalues.imin() + 1) % 3),
-            eigen
-                .eigenvectors
-                .column((eigen.eigenvalues.imin() + 2) % 3),
-        );
-        let j = DMatrix::from_fn(points.len(), 3, |i, c| match c {
-            0 => 1.0,
-            1 => (points[i] - mean).dot(&u),
-            _ => (points[i] - mean).dot(&w),
-        });
-        let sigma = normal_covariance(shares, &vec![normal; points.len()], &core);
-        fits.push((r, expected_residual2(&j, &sigma)));
+        fits.push(fit);
     }
     form_ratio(&format!("{geometry} plane flatness"), &fits);
 }

@@ -5,6 +5,7 @@
 
 use deltaz_calib::system_adjustment::{Frame, PointShares, SystemModel};
 use deltaz_host::measure::{host_identifier, LoadedImage, MeasureParams};
+use deltaz_host::object_accuracy::{error_against_truth, AtFloor, ObjectPoint};
 use deltaz_host::projector_calibration::DotObservation;
 use deltaz_host::reconstruct::covariance;
 use deltaz_host::scan::{on_device, on_host, scan, FramePoints};
@@ -142,67 +143,54 @@ impl Instrument {
 }
 
 /// The image noise measured against the truth (σ per axis, pixels), checked to be small, and
-/// each dot's covariance shares: the image's from it, the calibration's from the instrument.
+/// each matched dot as an object point with its covariance shares: the image's from that σ,
+/// the calibration's from the instrument.
 pub(crate) fn propagated(
     instrument: &Instrument,
     frames: &[Vec<Matched>],
-) -> (f64, Vec<Vec<PointShares>>) {
+) -> (f64, Vec<Vec<ObjectPoint>>) {
     let all = frames.iter().flatten();
     let n = all.clone().count() as f64;
     let sigma_px = (all.map(|m| m.px.0 * m.px.0 + m.px.1 * m.px.1).sum::<f64>() / (2.0 * n)).sqrt();
     assert!(sigma_px < 0.02, "centroid σ {sigma_px} px");
-    let shares = frames
+    let points = frames
         .iter()
         .map(|f| {
             f.iter()
-                .map(|m| instrument.shares(&m.dot, sigma_px))
+                .map(|m| ObjectPoint {
+                    point: m.point,
+                    truth: m.truth,
+                    shares: instrument.shares(&m.dot, sigma_px),
+                })
                 .collect()
         })
         .collect();
-    (sigma_px, shares)
+    (sigma_px, points)
 }
 
-/// The points' RMS error against the truth and its floor (the RMS of the propagated
-/// covariances' traces, image noise and calibration), after checking their ratio: at most 1.25,
-/// and at least 0.8 times the share of the floor independent from point to point (the image
-/// noise and each ray's own error; the calibration's error common to all points is one draw,
-/// and may happen to be small).
+/// The points' RMS error against the truth and its floor ([`error_against_truth`]: image
+/// noise and calibration), after checking their ratio: at most 1.25, and at least 0.8 times
+/// the share of the floor independent from point to point (the image noise and each ray's own
+/// error; the calibration's error common to all points is one draw, and may happen to be
+/// small).
 pub(crate) fn error_at_floor(
     name: &str,
     instrument: &Instrument,
     frames: &[Vec<Matched>],
-) -> (f64, f64) {
-    let (sigma_px, shares) = propagated(instrument, frames);
-    let core = instrument.core();
-    let n = frames.iter().map(Vec::len).sum::<usize>() as f64;
-    let error2: f64 = frames
-        .iter()
-        .flatten()
-        .map(|m| (m.point - m.truth).norm_squared())
-        .sum::<f64>()
-        / n;
-    let [image2, own2, floor2] = shares.iter().flatten().fold([0.0; 3], |[i, o, f], s| {
-        [
-            i + s.image.trace() / n,
-            o + (s.image + s.ray).trace() / n,
-            f + (s.image + s.calibration(&core)).trace() / n,
-        ]
-    });
-    let ratio = (error2 / floor2).sqrt();
-    let least = 0.8 * (own2 / floor2).sqrt();
+) -> AtFloor {
+    let (sigma_px, points) = propagated(instrument, frames);
+    let figure = error_against_truth(&points.concat(), &instrument.core());
+    let (ratio, least) = (figure.ratio(), 0.8 * figure.own_mm / figure.floor_mm);
     println!(
-        "{name}: {n} points, centroid σ {sigma_px:.4} px, 3D error RMS {:.3} mm, floor {:.3} mm \
-         (image {:.3} mm, image and rays' own {:.3} mm), ratio {ratio:.2} (at least {least:.2})",
-        error2.sqrt(),
-        floor2.sqrt(),
-        image2.sqrt(),
-        own2.sqrt()
+        "{name}: {} points, centroid σ {sigma_px:.4} px, 3D error RMS {:.3} mm, floor {:.3} mm \
+         (image and rays' own {:.3} mm), ratio {ratio:.2} (at least {least:.2})",
+        figure.points, figure.rms_mm, figure.floor_mm, figure.own_mm
     );
     assert!(
         (least..=1.25).contains(&ratio),
         "{name}: error / floor {ratio}, at least {least}"
     );
-    (error2.sqrt(), floor2.sqrt())
+    figure
 }
 
 #[test]
