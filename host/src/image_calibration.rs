@@ -14,6 +14,7 @@ use crate::measure::identify_images::{identify_images, image_files, DotGrid, Ide
 use crate::measure::layout::Layout;
 use crate::measure::MeasureParams;
 use crate::plates::{plate_observations, resect_all};
+use crate::residuals::{residuals, Residual};
 use crate::simulate::images::ImageSpec;
 use crate::simulate::{simulate, Scenario};
 use crate::system::{SystemContent, SystemRig, Warnings};
@@ -70,6 +71,8 @@ pub struct ImageCalibration {
     pub field: IdentifiedImages,
     /// The camera from the bundle adjustment on the field.
     pub camera: CameraFile,
+    /// The field targets' residuals in that adjustment.
+    pub residuals: Vec<Residual>,
     /// The plate images' identified control and dots.
     pub plates: IdentifiedImages,
     /// The whole-system adjustment.
@@ -165,6 +168,7 @@ pub fn calibrate_from_images(dir: &Path, known: &Known) -> Result<ImageCalibrati
         .context("the system calibrated from the images")?;
     Ok(ImageCalibration {
         camera: camera_file(&bundle, &field.observations),
+        residuals: residuals(&bundle, &field.observations),
         field,
         plates,
         adjustment,

@@ -9,7 +9,7 @@
 
 use deltaz_calib::system_adjustment::PointShares;
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// A scanned point on a test object: measured, true, and its covariance shares.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,7 +23,7 @@ pub struct ObjectPoint {
 }
 
 /// An RMS beside its floor.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct AtFloor {
     /// Points.
     pub points: usize,
@@ -32,8 +32,9 @@ pub struct AtFloor {
     /// Its floor: what the image noise and the calibration predict (mm).
     pub floor_mm: f64,
     /// The floor's share independent from point to point (image noise and each ray's own
-    /// error, mm); the rest is the calibration's error common to all points.
-    pub own_mm: f64,
+    /// error, mm); the rest is the calibration's error common to all points. None for a form
+    /// error, whose floor already holds what the fit leaves of the common share.
+    pub own_mm: Option<f64>,
 }
 
 impl AtFloor {
@@ -52,7 +53,7 @@ pub fn error_against_truth(points: &[ObjectPoint], core: &DMatrix<f64>) -> AtFlo
         points: points.len(),
         rms_mm: mean(&|p| (p.point - p.truth).norm_squared()),
         floor_mm: mean(&|p| (p.shares.image + p.shares.calibration(core)).trace()),
-        own_mm: mean(&|p| (p.shares.image + p.shares.ray).trace()),
+        own_mm: Some(mean(&|p| (p.shares.image + p.shares.ray).trace())),
     }
 }
 
@@ -79,7 +80,7 @@ pub fn form(fits: &[SurfaceFit]) -> AtFloor {
         points: n,
         rms_mm: per(fits.iter().map(|f| f.residuals.norm_squared()).sum()),
         floor_mm: per(fits.iter().map(|f| f.expected).sum()),
-        own_mm: f64::NAN,
+        own_mm: None,
     }
 }
 

@@ -180,11 +180,12 @@ pub(crate) fn error_at_floor(
 ) -> AtFloor {
     let (sigma_px, points) = propagated(instrument, frames);
     let figure = error_against_truth(&points.concat(), &instrument.core());
-    let (ratio, least) = (figure.ratio(), 0.8 * figure.own_mm / figure.floor_mm);
+    let own = figure.own_mm.unwrap();
+    let (ratio, least) = (figure.ratio(), 0.8 * own / figure.floor_mm);
     println!(
         "{name}: {} points, centroid σ {sigma_px:.4} px, 3D error RMS {:.3} mm, floor {:.3} mm \
          (image and rays' own {:.3} mm), ratio {ratio:.2} (at least {least:.2})",
-        figure.points, figure.rms_mm, figure.floor_mm, figure.own_mm
+        figure.points, figure.rms_mm, figure.floor_mm, own
     );
     assert!(
         (least..=1.25).contains(&ratio),

@@ -1,4 +1,5 @@
-//! `deltaz demo`: the whole system on the simulated paper rig.
+//! `deltaz demo --observations`: the whole system on the simulated paper rig, from simulated
+//! image observations (0.5 px noise) rather than images.
 //!
 //! 1. Simulate the paper's rig (Tables 1-4 geometry, 0.5 px image noise): the target field for
 //!    the camera, three plate images with control and projected dots.
@@ -9,6 +10,7 @@
 //! 5. Write `cloud.ply`, `report.md`, `report.json` and the plots: `residual_vectors.svg`,
 //!    `residual_histogram.svg`, `plate_errors.svg` and `torso_errors.svg`.
 
+use super::{bar, v3};
 use crate::accuracy::{against_truth, calibrate_simulation, paper_experiment, truth_figures};
 use crate::bundle::{calibrate, CalibrationOptions};
 use crate::camera_calibration::{build_problem, camera_file};
@@ -26,7 +28,6 @@ use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::rig::Method;
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -165,21 +166,6 @@ fn dot_residuals(
         })
         .collect::<Result<Vec<_>>>()
         .map(|images| images.concat())
-}
-
-fn bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:28} [{bar:30}] {pos}/{len} {elapsed}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
-
-fn v3(v: &Vector3<f64>) -> [f64; 3] {
-    [v.x, v.y, v.z]
 }
 
 /// Runs the demo and writes its files into `out` (created if needed). Everything is computed
@@ -367,6 +353,26 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     )?;
     write_atomic(&out.join("report.md"), md.as_bytes())?;
     Ok(report)
+}
+
+/// The summary `deltaz demo --observations` prints (mm, X / Y / Z).
+pub fn summary(report: &serde_json::Value) -> String {
+    let xyz = |v: &serde_json::Value| {
+        v.as_array()
+            .map(|a| {
+                a.iter()
+                    .map(|x| format!("{:.3}", x.as_f64().unwrap_or(f64::NAN)))
+                    .collect::<Vec<_>>()
+                    .join(" / ")
+            })
+            .unwrap_or_default()
+    };
+    format!(
+        "torso error std {} mm (floor {} mm), flat plate vs truth {} mm (X / Y / Z)",
+        xyz(&report["error_std_mm"]),
+        xyz(&report["torso"]["floor_mm"]),
+        xyz(&report["flat_plate"]["vs_truth_mm"])
+    )
 }
 
 fn report_markdown(r: &serde_json::Value) -> String {
