@@ -1049,8 +1049,8 @@ impl SystemModel {
         let own = &ray.covariance - &a * ray.cross.transpose();
         let j_core = jac.columns(0, core);
         let j_ray = jac.columns(core, ray.params.len());
-        let common = j_core + &j_ray * a;
-        let ray_cov = &j_ray * own * j_ray.transpose();
+        let common = j_core + j_ray * a;
+        let ray_cov = j_ray * own * j_ray.transpose();
         Ok(PointShares {
             point: x,
             image,

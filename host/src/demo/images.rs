@@ -266,12 +266,12 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     Ok(report)
 }
 
+/// An accuracy map's points: (X, Y, error), mm.
+type MapPoints = Vec<(f64, f64, f64)>;
+
 /// The sphere's figures: per frame the radius error and its σ, the form error over all frames;
 /// and the 1st frame's form residuals for its map.
-fn sphere_figures(
-    s: &Scanned,
-    core: &DMatrix<f64>,
-) -> Result<(serde_json::Value, Vec<(f64, f64, f64)>)> {
+fn sphere_figures(s: &Scanned, core: &DMatrix<f64>) -> Result<(serde_json::Value, MapPoints)> {
     let mut fits = Vec::new();
     let (mut errors, mut sigmas) = (Vec::new(), Vec::new());
     for (object, points) in s.objects.iter().zip(&s.points) {
@@ -292,10 +292,7 @@ fn sphere_figures(
 }
 
 /// The plane's flatness over all frames, and the 1st frame's residuals for its map.
-fn plane_figures(
-    s: &Scanned,
-    core: &DMatrix<f64>,
-) -> Result<(serde_json::Value, Vec<(f64, f64, f64)>)> {
+fn plane_figures(s: &Scanned, core: &DMatrix<f64>) -> Result<(serde_json::Value, MapPoints)> {
     let fits = s
         .points
         .iter()
@@ -307,7 +304,7 @@ fn plane_figures(
 }
 
 /// (X, Y, residual) of each point, for an accuracy map.
-fn map_of(points: &[ObjectPoint], residuals: &nalgebra::DVector<f64>) -> Vec<(f64, f64, f64)> {
+fn map_of(points: &[ObjectPoint], residuals: &nalgebra::DVector<f64>) -> MapPoints {
     points
         .iter()
         .zip(residuals.iter())
