@@ -18,9 +18,8 @@
 //!    `residual_histogram.svg`) and accuracy maps of the sphere's and the plane's form and
 //!    the torso's error (`sphere_errors.svg`, `plane_errors.svg`, `torso_errors.svg`).
 
-use super::{bar, v3};
+use super::{bar, slashed, v3, write_results};
 use crate::image_calibration::{calibrate_from_images, Known};
-use crate::io::atomic::write_atomic;
 use crate::link::Device;
 use crate::measure::MeasureParams;
 use crate::object_accuracy::{
@@ -255,14 +254,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     let ply = encode_with(&cloud, Encoding::BinaryLittleEndian, &info);
     steps.finish_and_clear();
 
-    write_atomic(&out.join("cloud.ply"), &ply)?;
-    write_atomic(&out.join("system.json"), system.to_json()?.as_bytes())?;
-    plots::write_plots(out, &plot_files)?;
-    write_atomic(
-        &out.join("report.json"),
-        (serde_json::to_string_pretty(&report)? + "\n").as_bytes(),
-    )?;
-    write_atomic(&out.join("report.md"), md.as_bytes())?;
+    write_results(out, &ply, &system, &plot_files, &report, &md)?;
     Ok(report)
 }
 
@@ -342,16 +334,6 @@ fn report_markdown(r: &serde_json::Value) -> Result<String> {
     let p = &c["projector"];
     let s = &r["scan"];
     let o = &r["objects"];
-    let mm3 = |v: &serde_json::Value| -> String {
-        v.as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|x| format!("{:.3}", num(x)))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            })
-            .unwrap_or_default()
-    };
     let radius: Vec<String> = o["sphere"]["radius_error_mm"]
         .as_array()
         .into_iter()
@@ -374,7 +356,7 @@ fn report_markdown(r: &serde_json::Value) -> Result<String> {
          | estimated | {:.4} | {:.4} | {:.4} | {:.3e} |\n\
          | σ (bundle) | {:.4} | {:.4} | {:.4} | {:.1e} |\n\
          | truth | {:.4} | {:.4} | {:.4} | {:.3e} |\n\n\
-         Projector centre in the camera system: ({}) mm, σ ({}) mm; truth ({}) mm; {} rays. \
+         Projector centre in the camera system (X / Y / Z): {} mm, σ {} mm; truth {} mm; {} rays. \
          Image noise estimated by the system adjustment: targets {:.4} px, dots {:.4} px.\n\n\
          ## Test objects scanned through the device (in process)\n\n\
          {} frames, {} points ({:.0} frames/s), {} wrong identifications; centroid error against \
@@ -412,9 +394,9 @@ fn report_markdown(r: &serde_json::Value) -> Result<String> {
         num(&cam["truth"]["cx_mm"]),
         num(&cam["truth"]["cy_mm"]),
         num(&cam["truth"]["k1"]),
-        mm3(&p["centre_mm"]),
-        mm3(&p["centre_sigma_mm"]),
-        mm3(&p["centre_truth_mm"]),
+        slashed(&p["centre_mm"]),
+        slashed(&p["centre_sigma_mm"]),
+        slashed(&p["centre_truth_mm"]),
         p["rays"],
         num(&c["sigma_targets_px"]),
         num(&c["sigma_dots_px"]),

@@ -10,12 +10,11 @@
 //! 5. Write `cloud.ply`, `report.md`, `report.json` and the plots: `residual_vectors.svg`,
 //!    `residual_histogram.svg`, `plate_errors.svg` and `torso_errors.svg`.
 
-use super::{bar, v3};
+use super::{bar, slashed, v3, write_results};
 use crate::accuracy::{against_truth, calibrate_simulation, paper_experiment, truth_figures};
 use crate::bundle::{calibrate, CalibrationOptions};
 use crate::camera_calibration::{build_problem, camera_file};
 use crate::compare::sample_std_about;
-use crate::io::atomic::write_atomic;
 use crate::link::Device;
 use crate::plots;
 use crate::ply::{encode, Encoding};
@@ -344,47 +343,26 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     steps.finish_and_clear();
 
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    write_atomic(&out.join("cloud.ply"), &ply)?;
-    write_atomic(&out.join("system.json"), system.to_json()?.as_bytes())?;
-    plots::write_plots(out, &plot_files)?;
-    write_atomic(
-        &out.join("report.json"),
-        (serde_json::to_string_pretty(&report)? + "\n").as_bytes(),
-    )?;
-    write_atomic(&out.join("report.md"), md.as_bytes())?;
+    write_results(out, &ply, &system, &plot_files, &report, &md)?;
     Ok(report)
 }
 
 /// The summary `deltaz demo --observations` prints (mm, X / Y / Z).
 pub fn summary(report: &serde_json::Value) -> String {
-    let xyz = |v: &serde_json::Value| {
-        v.as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|x| format!("{:.3}", x.as_f64().unwrap_or(f64::NAN)))
-                    .collect::<Vec<_>>()
-                    .join(" / ")
-            })
-            .unwrap_or_default()
-    };
     format!(
         "torso error std {} mm (floor {} mm), flat plate vs truth {} mm (X / Y / Z)",
-        xyz(&report["error_std_mm"]),
-        xyz(&report["torso"]["floor_mm"]),
-        xyz(&report["flat_plate"]["vs_truth_mm"])
+        slashed(&report["error_std_mm"]),
+        slashed(&report["torso"]["floor_mm"]),
+        slashed(&report["flat_plate"]["vs_truth_mm"])
     )
 }
 
 fn report_markdown(r: &serde_json::Value) -> String {
     let f = |v: &serde_json::Value| -> String {
-        v.as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|x| format!("{:.3}", x.as_f64().unwrap_or(f64::NAN)))
-                    .collect::<Vec<_>>()
-                    .join(" / ")
-            })
-            .unwrap_or_else(|| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
+        match v.as_f64() {
+            Some(x) => format!("{x:.4}"),
+            None => slashed(v),
+        }
     };
     let c = &r["camera"];
     let p = &r["projector"];

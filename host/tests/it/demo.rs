@@ -2,18 +2,25 @@
 //! observations (`--observations`): every output file, the PLY's vertex count, the device
 //! against the host's f64 path, and accuracy figures beside their floor.
 
+use std::path::PathBuf;
 use std::process::Command;
 
 /// The image path: calibrated from the images alone, the test objects scanned through the
 /// device with no wrong identification, each object's figure beside its floor (image noise and
 /// calibration): within 1.25 ×, and not below 0.8 × of what the fits or the points' own errors
 /// leave; every sphere radius within 3 σ of the truth.
-#[test]
-fn demo_from_images() {
+/// Runs `deltaz demo ARGS --out DIR`, checks that it succeeded and wrote `files`: the folder
+/// (kept alive), the output folder, report.json and the standard output.
+fn run_demo(
+    args: &[&str],
+    files: &[&str],
+) -> (tempfile::TempDir, PathBuf, serde_json::Value, String) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let run = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(["demo", "--out"])
+        .arg("demo")
+        .args(args)
+        .arg("--out")
         .arg(&out)
         .output()
         .unwrap();
@@ -22,25 +29,36 @@ fn demo_from_images() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let stdout = String::from_utf8_lossy(&run.stdout);
-    println!("{stdout}");
-    for name in [
+    let common = [
         "cloud.ply",
         "report.md",
         "report.json",
         "system.json",
         "residual_vectors.svg",
         "residual_histogram.svg",
-        "sphere_errors.svg",
-        "plane_errors.svg",
         "torso_errors.svg",
-        "images/p1.png",
-        "images/objects/torso_2.png",
-    ] {
+    ];
+    for name in common.iter().chain(files) {
         assert!(out.join(name).is_file(), "{name} missing");
     }
-    let report: serde_json::Value =
+    let report =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout).to_string();
+    println!("{stdout}");
+    (dir, out, report, stdout)
+}
+
+#[test]
+fn demo_from_images() {
+    let (_dir, out, report, stdout) = run_demo(
+        &[],
+        &[
+            "sphere_errors.svg",
+            "plane_errors.svg",
+            "images/p1.png",
+            "images/objects/torso_2.png",
+        ],
+    );
     let num = |v: &serde_json::Value| v.as_f64().unwrap();
     let scan = &report["scan"];
     assert_eq!(scan["frames"], 9);
@@ -100,32 +118,7 @@ fn demo_from_images() {
 
 #[test]
 fn demo_from_observations() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
-    let run = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(["demo", "--observations", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    for name in [
-        "cloud.ply",
-        "report.md",
-        "report.json",
-        "system.json",
-        "residual_vectors.svg",
-        "residual_histogram.svg",
-        "plate_errors.svg",
-        "torso_errors.svg",
-    ] {
-        assert!(out.join(name).is_file(), "{name} missing");
-    }
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (_dir, out, report, _) = run_demo(&["--observations"], &["plate_errors.svg"]);
     let xyz = |v: &serde_json::Value| -> Vec<f64> {
         v.as_array()
             .unwrap()
