@@ -1039,12 +1039,13 @@ impl SystemModel {
         }
         // Split the ray's parameters r = A δc + u (see [`PointShares`]).
         let core = self.core_covariance.nrows();
-        let c_inv = self
-            .core_covariance
+        // The pseudo-inverse: a core parameter held fixed (a zero row and column, and zero
+        // cross covariance) splits off nothing.
+        let c = &self.core_covariance;
+        let c_inv = c
             .clone()
-            .cholesky()
-            .ok_or(SystemError::Singular)?
-            .inverse();
+            .pseudo_inverse(c.amax() * 1e-14)
+            .map_err(|_| SystemError::Singular)?;
         let a = &ray.cross * c_inv;
         let own = &ray.covariance - &a * ray.cross.transpose();
         let j_core = jac.columns(0, core);
