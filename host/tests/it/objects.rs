@@ -31,7 +31,7 @@ static CALIBRATED: [OnceLock<Instrument>; 2] =
 
 /// `scenario`'s field and plate images rendered (seed `seed`) and the system calibrated from
 /// them alone ([`calibrate_from_images`]).
-pub(crate) fn from_images(scenario: &Scenario, seed: u64) -> Instrument {
+pub(crate) fn from_images(geometry: &str, scenario: &Scenario, seed: u64) -> Instrument {
     let dir = tempfile::tempdir().unwrap();
     let spec = ImageSpec::default();
     write_images(scenario, seed, &spec, dir.path()).unwrap();
@@ -40,9 +40,8 @@ pub(crate) fn from_images(scenario: &Scenario, seed: u64) -> Instrument {
     let m = &cal.adjustment.model;
     let truth = scenario.camera.inner;
     println!(
-        "{}: calibrated from images: f {:.4} mm (true {:.4}), centre {:.2?} mm (σ {:.3?}, true {:.2?}), \
+        "{geometry}: calibrated from images: f {:.4} mm (true {:.4}), centre {:.2?} mm (σ {:.3?}, true {:.2?}), \
          {} rays, σ0 targets {:.4} px, dots {:.4} px",
-        scenario.name,
         m.inner.f,
         truth.f,
         m.centre.as_slice(),
@@ -63,10 +62,11 @@ pub(crate) fn from_images(scenario: &Scenario, seed: u64) -> Instrument {
 /// and their matched dots, frame by frame (identified over the plates' depth ± 130 mm).
 fn scanned(
     k: usize,
+    geometry: &str,
     scenario: &Scenario,
     kind: &str,
 ) -> (&'static Instrument, Vec<Object>, Vec<Vec<Matched>>) {
-    let instrument = CALIBRATED[k].get_or_init(|| from_images(scenario, 3 + k as u64));
+    let instrument = CALIBRATED[k].get_or_init(|| from_images(geometry, scenario, 3 + k as u64));
     let truth = true_rig(scenario);
     let depth = plate_depth(scenario);
     let objects: Vec<Object> = test_objects(depth)
@@ -114,7 +114,7 @@ fn sphere_radius_and_form_from_images() {
 }
 
 fn sphere(k: usize, geometry: &str, scenario: &Scenario) {
-    let (instrument, objects, matched) = scanned(k, scenario, "sphere");
+    let (instrument, objects, matched) = scanned(k, geometry, scenario, "sphere");
     let (_, points) = propagated(instrument, &matched);
     let core = instrument.core();
     let mut fits = Vec::new();
@@ -151,7 +151,7 @@ fn plane_flatness_from_images() {
 }
 
 fn flatness(k: usize, geometry: &str, scenario: &Scenario) {
-    let (instrument, objects, matched) = scanned(k, scenario, "plane");
+    let (instrument, objects, matched) = scanned(k, geometry, scenario, "plane");
     let (_, points) = propagated(instrument, &matched);
     let core = instrument.core();
     let mut fits = Vec::new();
@@ -174,7 +174,7 @@ fn flatness(k: usize, geometry: &str, scenario: &Scenario) {
 #[test]
 fn torso_error_from_images() {
     for (k, (geometry, scenario)) in geometries().iter().enumerate() {
-        let (instrument, _, matched) = scanned(k, scenario, "torso");
+        let (instrument, _, matched) = scanned(k, geometry, scenario, "torso");
         error_at_floor(&format!("{geometry} torso"), instrument, &matched);
     }
 }
