@@ -25,7 +25,7 @@ use deltaz_shared::rig::Method;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
-pub use crate::simulate::pattern::TABLE4_IDS;
+pub use crate::pattern::TABLE4_IDS;
 
 /// Step 4 for every plate image: the camera pose in the plate frame, by space resection on the
 /// plate's control points with the given inner orientation.

@@ -96,9 +96,10 @@ enum Command {
         #[command(flatten)]
         output: cli::Output,
     },
-    /// The whole system on the simulated paper rig: camera and projector calibration, upload to
-    /// the device, one frame of a torso-like surface; writes cloud.ply, report.md, report.json,
-    /// system.json and SVG plots.
+    /// The whole system on the simulated paper rig: images rendered, camera and projector
+    /// calibrated from them, uploaded to the device, test objects (sphere, plane, torso) scanned
+    /// through it; writes OUT/images, cloud.ply, report.md, report.json, system.json and SVG
+    /// plots.
     Demo {
         /// Output directory.
         #[arg(long, default_value = "out")]
@@ -106,6 +107,9 @@ enum Command {
         /// Random seed of the simulation.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Run from simulated image observations (0.5 px noise) instead of rendered images.
+        #[arg(long)]
+        observations: bool,
     },
     /// Measure targets and dots in images (PNG, TIFF, JPEG): sub-pixel centres into an
     /// observations CSV (image = file stem, point = m1, m2, ... in row-major order).
@@ -697,20 +701,25 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 out.display()
             );
         }
-        Command::Demo { out, seed } => {
+        Command::Demo {
+            out,
+            seed,
+            observations,
+        } => {
             let progress = cli::Output::default().progress(format!(
                 "running the demo (simulation, calibrations, reconstructions) -> {}",
                 out.display()
             ));
-            let report = demo::run(&out, seed)?;
-            progress.finish_and_clear();
-            println!(
-                "torso error std {} mm (floor {} mm), flat plate vs truth {} mm -> {}",
-                report["error_std_mm"],
-                report["torso"]["floor_mm"],
-                report["flat_plate"]["vs_truth_mm"],
-                out.display()
-            );
+            if observations {
+                let report = demo::observations::run(&out, seed)?;
+                progress.finish_and_clear();
+                println!("{}", demo::observations::summary(&report));
+            } else {
+                let report = demo::images::run(&out, seed)?;
+                progress.finish_and_clear();
+                println!("{}", demo::images::summary(&report)?);
+            }
+            println!("-> {}", out.display());
         }
         Command::Compare {
             reconstructed,

@@ -898,6 +898,42 @@ pub struct SystemPoint {
     pub calibration: Matrix3<f64>,
 }
 
+/// A reconstructed point's covariance split by what is shared between points: its error is
+/// `common` δc + its own error, δc the error of the core parameters (inner orientation, centre,
+/// datum pose; covariance [`SystemModel::core_covariance`]) common to every point, and the own
+/// error (the dot's image noise and its ray's parameters given the core) independent from
+/// point to point but for points of the same ray.
+///
+/// A ray's parameters r depend on the core through their cross covariance: r = A δc + u with
+/// A = Σ_rc Σ_c⁻¹ and u independent of the core and of the other rays (the rays are eliminated
+/// one by one in the Schur complement), Σ_u = Σ_r − A Σ_cr.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointShares {
+    /// The point.
+    pub point: Vector3<f64>,
+    /// Covariance from the dot's image noise (mm²).
+    pub image: Matrix3<f64>,
+    /// Covariance from the ray's own parameter error u (mm²).
+    pub ray: Matrix3<f64>,
+    /// The point's sensitivity to the core parameters (3 × core), ray's share A included.
+    pub common: DMatrix<f64>,
+}
+
+impl PointShares {
+    /// The calibration's whole covariance of the point: common G Σ_c Gᵀ plus the ray's own.
+    pub fn calibration(&self, core_covariance: &DMatrix<f64>) -> Matrix3<f64> {
+        let c = &self.common * core_covariance * self.common.transpose();
+        Matrix3::from_fn(|a, b| c[(a, b)]) + self.ray
+    }
+
+    /// The covariance between this point and `other`, a point of another ray: the share of the
+    /// common core error.
+    pub fn cross(&self, other: &PointShares, core_covariance: &DMatrix<f64>) -> Matrix3<f64> {
+        let c = &self.common * core_covariance * other.common.transpose();
+        Matrix3::from_fn(|a, b| c[(a, b)])
+    }
+}
+
 impl SystemModel {
     /// A dot reconstructed in `frame` with its covariance: from the image noise of the dot (the
     /// estimated σ of the dots) and from the calibration (inner orientation, centre, the ray's
@@ -910,6 +946,23 @@ impl SystemModel {
         method: Method,
         frame: Frame,
     ) -> Result<SystemPoint, SystemError> {
+        let shares = self.reconstruct_shares(grid, dot, method, frame)?;
+        Ok(SystemPoint {
+            point: shares.point,
+            image: shares.image,
+            calibration: shares.calibration(&self.core_covariance),
+        })
+    }
+
+    /// [`Self::reconstruct`] with the calibration's covariance split into the share common to
+    /// every point and the ray's own ([`PointShares`]), for the covariance between points.
+    pub fn reconstruct_shares(
+        &self,
+        grid: &PixelGrid<f64>,
+        dot: &DotObservation,
+        method: Method,
+        frame: Frame,
+    ) -> Result<PointShares, SystemError> {
         let datum = match (frame, &self.datum) {
             (Frame::Plate, None) => {
                 return Err(SystemError::Geometry(
@@ -991,11 +1044,26 @@ impl SystemModel {
             let d = (point(&up, dot.col, dot.row)? - point(&down, dot.col, dot.row)?) / (2.0 * h);
             jac.set_column(i, &d);
         }
-        let cov = &jac * self.ray_parameter_covariance(index) * jac.transpose();
-        Ok(SystemPoint {
+        // Split the ray's parameters r = A δc + u (see [`PointShares`]).
+        let core = self.core_covariance.nrows();
+        // The pseudo-inverse: a core parameter held fixed (a zero row and column, and zero
+        // cross covariance) splits off nothing.
+        let c = &self.core_covariance;
+        let c_inv = c
+            .clone()
+            .pseudo_inverse(c.amax() * 1e-14)
+            .map_err(|_| SystemError::Singular)?;
+        let a = &ray.cross * c_inv;
+        let own = &ray.covariance - &a * ray.cross.transpose();
+        let j_core = jac.columns(0, core);
+        let j_ray = jac.columns(core, ray.params.len());
+        let common = j_core + j_ray * a;
+        let ray_cov = j_ray * own * j_ray.transpose();
+        Ok(PointShares {
             point: x,
             image,
-            calibration: Matrix3::from_fn(|a, b| cov[(a, b)]),
+            ray: Matrix3::from_fn(|a, b| ray_cov[(a, b)]),
+            common,
         })
     }
 }

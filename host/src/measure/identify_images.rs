@@ -16,7 +16,7 @@ use super::grid::walk_grid;
 use super::layout::{match_layout, Blob, Layout};
 use super::{measure_file, MeasureParams, Measurement};
 use crate::io::observations::{Observation, PointKind};
-use crate::simulate::pattern::PatternSpec;
+use crate::pattern::PatternSpec;
 use anyhow::{bail, Context, Result};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::Camera;

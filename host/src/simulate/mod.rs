@@ -9,7 +9,6 @@
 
 pub mod images;
 pub mod objects;
-pub mod pattern;
 pub mod scenario;
 pub mod truth;
 
@@ -372,7 +371,7 @@ mod tests {
         let truth = simulate(&quiet_paper(), 1).truth;
         let c = v(truth.projector.centre_global);
         assert!((c - Vector3::from(TABLE3_GLOBAL)).amax() < 0.01, "{c}");
-        for (id, (_, d)) in pattern::TABLE4_IDS.into_iter().zip(TABLE4) {
+        for (id, (_, d)) in crate::pattern::TABLE4_IDS.into_iter().zip(TABLE4) {
             let ray = truth.projector.rays.iter().find(|r| r.id == id).unwrap();
             assert!(
                 (v(ray.global) - v(d).normalize()).amax() < 1e-12,

@@ -38,7 +38,7 @@ pub enum Object {
         /// Its radius.
         radius: f64,
     },
-    /// The demo's torso ([`crate::demo::torso_height`]) facing the camera: its base plane `depth`
+    /// The torso ([`torso_height`]) facing the camera: its base plane `depth`
     /// away, its back up to 135 mm nearer, centred on the optical axis.
     Torso {
         /// Distance of the base plane.
@@ -49,7 +49,7 @@ pub enum Object {
 impl Object {
     /// The torso's height above its base plane at (x, y).
     fn torso_relief(x: f64, y: f64) -> f64 {
-        crate::demo::torso_height(x + 375.0, y + 365.0) - 200.0
+        torso_height(x + 375.0, y + 365.0) - 200.0
     }
 
     /// Where the ray `start + t dir` (t > 0) first meets the surface, with the surface's outward
@@ -105,6 +105,17 @@ impl Object {
             }
         }
     }
+}
+
+/// The torso-like surface in the 1st plate image's frame (mm): a back 1.4-1.6 m from the camera,
+/// rounded across (X), a spine groove, and a gentle lordosis along Y, on the plane Z = 200.
+pub fn torso_height(x: f64, y: f64) -> f64 {
+    let (cx, cy) = (375.0, 365.0);
+    let u = ((x - cx) / 330.0).clamp(-1.0, 1.0);
+    let across = 110.0 * (1.0 - u * u).sqrt();
+    let spine = -12.0 * (-((x - cx) / 35.0).powi(2)).exp();
+    let along = 25.0 * (std::f64::consts::PI * (y - cy) / 900.0).cos();
+    200.0 + across + spine + along
 }
 
 /// The dots of `rig`'s projector on `object` that the camera sees (the surface facing it,

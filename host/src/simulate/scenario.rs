@@ -1,8 +1,8 @@
 //! Scenario files (TOML): the camera, the target field and its stations, the rig, the plate and
 //! its images, the noise. [`Scenario::paper`] is the paper's set-up.
 
-use super::pattern::PatternSpec;
 use crate::io::camera_file::{InnerParams, PoseParams};
+use crate::pattern::PatternSpec;
 use deltaz_shared::paper::{DC40_GRID, TABLE1_INNER, TABLE2, TABLE3_CAMERA};
 use serde::{Deserialize, Serialize};
 

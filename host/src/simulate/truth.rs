@@ -1,8 +1,8 @@
 //! `truth.json` ("deltaz.truth/1"): every true parameter of a simulation.
 
-use super::pattern::PatternRay;
 use super::Scenario;
 use crate::io::camera_file::{InnerParams, PoseParams, Station};
+use crate::pattern::PatternRay;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::projector::{Projector, ProjectorRay};

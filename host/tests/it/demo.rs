@@ -1,14 +1,26 @@
-//! `deltaz demo` end to end: every output file, the PLY's vertex count, the device against the
-//! host's f64 path, and accuracy figures beside their image-noise floor.
+//! `deltaz demo` end to end, from rendered images (the default) and from simulated
+//! observations (`--observations`): every output file, the PLY's vertex count, the device
+//! against the host's f64 path, and accuracy figures beside their floor.
 
+use std::path::PathBuf;
 use std::process::Command;
 
-#[test]
-fn demo_writes_its_report() {
+/// The image path: calibrated from the images alone, the test objects scanned through the
+/// device with no wrong identification, each object's figure beside its floor (image noise and
+/// calibration): within 1.25 ×, and not below 0.8 × of what the fits or the points' own errors
+/// leave; every sphere radius within 3 σ of the truth.
+/// Runs `deltaz demo ARGS --out DIR`, checks that it succeeded and wrote `files`: the folder
+/// (kept alive), the output folder, report.json and the standard output.
+fn run_demo(
+    args: &[&str],
+    files: &[&str],
+) -> (tempfile::TempDir, PathBuf, serde_json::Value, String) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let run = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(["demo", "--out"])
+        .arg("demo")
+        .args(args)
+        .arg("--out")
         .arg(&out)
         .output()
         .unwrap();
@@ -17,20 +29,96 @@ fn demo_writes_its_report() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    for name in [
+    let common = [
         "cloud.ply",
         "report.md",
         "report.json",
         "system.json",
         "residual_vectors.svg",
         "residual_histogram.svg",
-        "plate_errors.svg",
         "torso_errors.svg",
-    ] {
+    ];
+    for name in common.iter().chain(files) {
         assert!(out.join(name).is_file(), "{name} missing");
     }
-    let report: serde_json::Value =
+    let report =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout).to_string();
+    println!("{stdout}");
+    (dir, out, report, stdout)
+}
+
+#[test]
+fn demo_from_images() {
+    let (_dir, out, report, stdout) = run_demo(
+        &[],
+        &[
+            "sphere_errors.svg",
+            "plane_errors.svg",
+            "images/p1.png",
+            "images/objects/torso_2.png",
+        ],
+    );
+    let num = |v: &serde_json::Value| v.as_f64().unwrap();
+    let scan = &report["scan"];
+    assert_eq!(scan["frames"], 9);
+    assert_eq!(scan["wrong_identifications"], 0);
+    assert!(num(&scan["device_vs_host_max_mm"]) < 0.1);
+    let points = scan["points"].as_u64().unwrap();
+    let ply = std::fs::read(out.join("cloud.ply")).unwrap();
+    let header = String::from_utf8_lossy(&ply[..600]).to_string();
+    assert!(
+        header.contains(&format!("element vertex {points}\n"))
+            && header.contains("property uint frame"),
+        "{header}"
+    );
+    let objects = &report["objects"];
+    let mut counted = 0;
+    for (name, figure, least) in [
+        ("sphere form", &objects["sphere"]["form"], 0.8),
+        ("plane flatness", &objects["plane"]["flatness"], 0.8),
+        ("torso error", &objects["torso"]["error"], 0.0),
+    ] {
+        let (rms, floor) = (num(&figure["rms_mm"]), num(&figure["floor_mm"]));
+        // Against the truth the calibration's common error is one draw: at least the points'
+        // own share.
+        let least = figure["own_mm"]
+            .as_f64()
+            .map_or(least, |own| 0.8 * own / floor);
+        let ratio = rms / floor;
+        assert!(
+            (least..=1.25).contains(&ratio),
+            "{name}: {rms} mm, floor {floor} mm"
+        );
+        assert!(
+            stdout.contains(&format!("{name} {rms:.4} mm (floor {floor:.4} mm")),
+            "{stdout}"
+        );
+        counted += figure["points"].as_u64().unwrap();
+    }
+    // Every scanned point is in one object's figure.
+    assert_eq!(counted, points);
+    let sphere = &objects["sphere"];
+    for (e, s) in sphere["radius_error_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(sphere["radius_sigma_mm"].as_array().unwrap())
+    {
+        assert!(
+            num(e).abs() <= 3.0 * num(s),
+            "radius error {e} mm, σ {s} mm"
+        );
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("## Calibration from the images") && md.contains("| torso: 3D error"));
+    let torso_map = std::fs::read_to_string(out.join("torso_errors.svg")).unwrap();
+    assert!(torso_map.contains("X (mm)") && torso_map.contains("Z error (mm)"));
+}
+
+#[test]
+fn demo_from_observations() {
+    let (_dir, out, report, _) = run_demo(&["--observations"], &["plate_errors.svg"]);
     let xyz = |v: &serde_json::Value| -> Vec<f64> {
         v.as_array()
             .unwrap()

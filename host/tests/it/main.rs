@@ -12,6 +12,7 @@ mod identify;
 mod images_cli;
 mod images_to_points;
 mod json_output;
+mod layout;
 mod link_errors;
 mod link_in_process;
 mod measure;

@@ -1,4 +1,5 @@
-//! `deltaz demo`: the whole system on the simulated paper rig.
+//! `deltaz demo --observations`: the whole system on the simulated paper rig, from simulated
+//! image observations (0.5 px noise) rather than images.
 //!
 //! 1. Simulate the paper's rig (Tables 1-4 geometry, 0.5 px image noise): the target field for
 //!    the camera, three plate images with control and projected dots.
@@ -9,23 +10,23 @@
 //! 5. Write `cloud.ply`, `report.md`, `report.json` and the plots: `residual_vectors.svg`,
 //!    `residual_histogram.svg`, `plate_errors.svg` and `torso_errors.svg`.
 
+use super::{bar, slashed, v3, write_results};
 use crate::accuracy::{against_truth, calibrate_simulation, paper_experiment, truth_figures};
 use crate::bundle::{calibrate, CalibrationOptions};
 use crate::camera_calibration::{build_problem, camera_file};
 use crate::compare::sample_std_about;
-use crate::io::atomic::write_atomic;
 use crate::link::Device;
 use crate::plots;
 use crate::ply::{encode, Encoding};
 use crate::projector_calibration::{Model, Plane, PlateImage};
 use crate::reconstruct::{covariance, reconstruct, ReconstructedPoint};
 use crate::residuals::Residual;
+use crate::simulate::objects::torso_height;
 use crate::simulate::{simulate, Scenario, Simulation};
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::rig::Method;
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -55,17 +56,6 @@ pub fn measure(
         .enumerate()
         .filter_map(|(i, p)| p.ok().map(|w| (i, w.point)))
         .collect())
-}
-
-/// The torso-like surface in the 1st plate image's frame (mm): a back 1.4-1.6 m from the camera,
-/// rounded across (X), a spine groove, and a gentle lordosis along Y, on the plane Z = 200.
-pub fn torso_height(x: f64, y: f64) -> f64 {
-    let (cx, cy) = (375.0, 365.0);
-    let u = ((x - cx) / 330.0).clamp(-1.0, 1.0);
-    let across = 110.0 * (1.0 - u * u).sqrt();
-    let spine = -12.0 * (-((x - cx) / 35.0).powi(2)).exp();
-    let along = 25.0 * (std::f64::consts::PI * (y - cy) / 900.0).cos();
-    200.0 + across + spine + along
 }
 
 /// Where a true ray (global frame) meets the torso, by bisection on its parameter.
@@ -175,21 +165,6 @@ fn dot_residuals(
         })
         .collect::<Result<Vec<_>>>()
         .map(|images| images.concat())
-}
-
-fn bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:28} [{bar:30}] {pos}/{len} {elapsed}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
-
-fn v3(v: &Vector3<f64>) -> [f64; 3] {
-    [v.x, v.y, v.z]
 }
 
 /// Runs the demo and writes its files into `out` (created if needed). Everything is computed
@@ -368,27 +343,26 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     steps.finish_and_clear();
 
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    write_atomic(&out.join("cloud.ply"), &ply)?;
-    write_atomic(&out.join("system.json"), system.to_json()?.as_bytes())?;
-    plots::write_plots(out, &plot_files)?;
-    write_atomic(
-        &out.join("report.json"),
-        (serde_json::to_string_pretty(&report)? + "\n").as_bytes(),
-    )?;
-    write_atomic(&out.join("report.md"), md.as_bytes())?;
+    write_results(out, &ply, &system, &plot_files, &report, &md)?;
     Ok(report)
+}
+
+/// The summary `deltaz demo --observations` prints (mm, X / Y / Z).
+pub fn summary(report: &serde_json::Value) -> String {
+    format!(
+        "torso error std {} mm (floor {} mm), flat plate vs truth {} mm (X / Y / Z)",
+        slashed(&report["error_std_mm"]),
+        slashed(&report["torso"]["floor_mm"]),
+        slashed(&report["flat_plate"]["vs_truth_mm"])
+    )
 }
 
 fn report_markdown(r: &serde_json::Value) -> String {
     let f = |v: &serde_json::Value| -> String {
-        v.as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|x| format!("{:.3}", x.as_f64().unwrap_or(f64::NAN)))
-                    .collect::<Vec<_>>()
-                    .join(" / ")
-            })
-            .unwrap_or_else(|| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
+        match v.as_f64() {
+            Some(x) => format!("{x:.4}"),
+            None => slashed(v),
+        }
     };
     let c = &r["camera"];
     let p = &r["projector"];

@@ -1,0 +1,62 @@
+//! `deltaz demo`: the whole system on the simulated paper rig, from rendered images
+//! ([`images`], the default) or from simulated image observations ([`observations`],
+//! `--observations`).
+
+pub mod images;
+pub mod observations;
+
+use crate::io::atomic::write_atomic;
+use crate::system::SystemFile;
+use anyhow::Result;
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Vector3;
+use std::path::Path;
+
+/// The demo's step bar on stderr.
+fn bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:36} [{bar:30}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+fn v3(v: &Vector3<f64>) -> [f64; 3] {
+    [v.x, v.y, v.z]
+}
+
+/// A JSON array of numbers as "a / b / c" with 3 decimals.
+fn slashed(v: &serde_json::Value) -> String {
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .map(|x| format!("{:.3}", x.as_f64().unwrap_or(f64::NAN)))
+                .collect::<Vec<_>>()
+                .join(" / ")
+        })
+        .unwrap_or_default()
+}
+
+/// The demo's result files, written into `out` once everything is computed: `cloud.ply`,
+/// `system.json`, the plots, `report.json` and `report.md`.
+fn write_results(
+    out: &Path,
+    ply: &[u8],
+    system: &SystemFile,
+    plots: &[(&str, String)],
+    report: &serde_json::Value,
+    md: &str,
+) -> Result<()> {
+    write_atomic(&out.join("cloud.ply"), ply)?;
+    write_atomic(&out.join("system.json"), system.to_json()?.as_bytes())?;
+    crate::plots::write_plots(out, plots)?;
+    write_atomic(
+        &out.join("report.json"),
+        (serde_json::to_string_pretty(report)? + "\n").as_bytes(),
+    )?;
+    write_atomic(&out.join("report.md"), md.as_bytes())?;
+    Ok(())
+}
