@@ -1,13 +1,13 @@
 //! Camera and projector calibrated from images alone, as a user of the rig would: the field
 //! images' targets identified by the known layout and the camera calibrated from them
 //! (self-calibrating bundle adjustment), the plate images' control targets and projected dots
-//! identified, then camera and projector in one whole-system adjustment with the bundle's inner
-//! orientation as a prior (`deltaz calibrate system`). The system is in the camera system, and
+//! identified, then field images, plates and projector in one whole-system adjustment started
+//! from the bundle's solution (`deltaz calibrate system`). The system is in the camera system, and
 //! every point reconstructed with it carries the calibration's covariance besides the image
 //! noise's ([`deltaz_calib::system_adjustment::SystemModel::reconstruct`]).
 
 use crate::bundle::{calibrate, CalibrationOptions};
-use crate::camera_calibration::{build_problem, camera_file, camera_prior};
+use crate::camera_calibration::{build_problem, camera_file};
 use crate::io::camera_file::CameraFile;
 use crate::io::control::ControlPoint;
 use crate::measure::identify_images::{identify_images, image_files, DotGrid, IdentifiedImages};
@@ -19,7 +19,7 @@ use crate::simulate::images::ImageSpec;
 use crate::simulate::{simulate, Scenario};
 use crate::system::{SystemContent, SystemRig, Warnings};
 use anyhow::{Context, Result};
-use deltaz_calib::system_adjustment::{adjust_system, SystemAdjustment, SystemInput};
+use deltaz_calib::system_adjustment::{adjust_system, CameraSource, SystemAdjustment, SystemInput};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use nalgebra::Vector2;
 use std::path::Path;
@@ -146,7 +146,7 @@ pub fn calibrate_from_images(dir: &Path, known: &Known) -> Result<ImageCalibrati
     let adjustment = adjust_system(&SystemInput {
         grid: known.grid,
         inner,
-        camera: Some(camera_prior(&bundle)),
+        camera: CameraSource::Field(&bundle.problem),
         control: &known.plate_control,
         plates: plate_observations(
             &plates.observations,
