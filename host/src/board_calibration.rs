@@ -30,6 +30,8 @@ pub struct BoardCalibration {
     pub observations: Vec<Observation>,
     /// The board's circles as control.
     pub control: Vec<ControlPoint>,
+    /// Every observation's image residual.
+    pub residuals: Vec<crate::residuals::Residual>,
     /// The starting focal length from the homographies (pixels).
     pub start_f_px: f64,
     /// The images left out (no board found), with why.
@@ -177,6 +179,7 @@ pub fn calibrate_board(
     let calibration = bundle::calibrate(problem, options)?;
     Ok(BoardCalibration {
         file: camera_file(&calibration, &observations),
+        residuals: crate::residuals::residuals(&calibration, &observations),
         observations,
         control,
         start_f_px,
