@@ -215,6 +215,9 @@ fn cases() -> Vec<Case> {
         case(&format!("{reconstruct} --sigma-px NaN"), &["--sigma-px", "NaN is not a positive finite number"]),
         case(&format!("{reconstruct} --sigma-px 0"), &["--sigma-px", "0 is not a positive finite number"]),
         case(&format!("{reconstruct} --csv nodir/c.csv"), &["nodir/c.csv", "cannot write"]),
+        // The cloud's target is a folder: the CSV is not written either.
+        case("reconstruct --system system.json --obs dots.csv --out adir --csv c.csv", &["adir: cannot write: it is a directory"])
+            .with("adir/keep", ""),
         // resect
         case(resect, &["camera.json", "`image_size` 4294967295 x 512 px exceeds the limit"])
             .with("camera.json", edited("camera.json", "768,", "4294967295,")),
