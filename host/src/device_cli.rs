@@ -266,7 +266,7 @@ pub struct StreamArgs {
     pub source: StreamSource,
     /// PLY output.
     pub out: Option<PathBuf>,
-    /// CSV output `image,point,X,Y,Z,miss`.
+    /// CSV output `image,point,X,Y,Z,miss,saturated`.
     pub csv: Option<PathBuf>,
     /// Intersection method for an upload.
     pub method: Method,

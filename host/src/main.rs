@@ -312,7 +312,9 @@ enum DeviceWhat {
         identification: DeviceIdentifyArgs,
     },
     /// Stream centroids (an observations CSV, one frame per image, or simulated frames) through
-    /// the device into PLY and/or CSV, with a live points/s figure.
+    /// the device into PLY and/or CSV (both written, or neither when the stream fails), with a
+    /// progress bar; says what became of every dot sent: a point, not identified, or no point,
+    /// each by reason.
     Stream {
         /// The system the device must hold (uploaded first to an in-process or QEMU device).
         #[arg(long)]
@@ -324,10 +326,11 @@ enum DeviceWhat {
         /// 200 mm.
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
         simulate: Option<u32>,
-        /// Output PLY (binary).
+        /// Output PLY (binary; mm, rig frame, the calibration's fingerprint, each point's frame).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Output CSV `image,point,X,Y,Z,miss`.
+        /// Output CSV `image,point,X,Y,Z,miss,saturated` (mm; saturated = 1: the device's miss
+        /// distance is at its wire limit, a lower bound).
         #[arg(long)]
         csv: Option<PathBuf>,
         /// Intersection on the device when uploading.
