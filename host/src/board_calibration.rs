@@ -33,6 +33,8 @@ pub struct BoardCalibration {
     pub observations: Vec<Observation>,
     /// The board's circles as control.
     pub control: Vec<ControlPoint>,
+    /// Every observation's image residual.
+    pub residuals: Vec<crate::residuals::Residual>,
     /// The starting focal length from the homographies (pixels).
     pub start_f_px: f64,
     /// The images left out (no board found), with why.
@@ -181,6 +183,7 @@ pub fn calibrate_board(
     Ok(BoardCalibration {
         file: camera_file(&calibration, &observations),
         inner_covariance: camera_prior(&calibration),
+        residuals: crate::residuals::residuals(&calibration, &observations),
         observations,
         control,
         start_f_px,

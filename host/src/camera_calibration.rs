@@ -156,18 +156,24 @@ pub fn calibrate_files(
     out: &Path,
     options: &CalibrationOptions,
 ) -> anyhow::Result<CameraFile> {
-    Ok(calibrate_files_with_residuals(init, obs, control, out, options)?.0)
+    Ok(calibrate_files_with_residuals(init, obs, control, out, options, None)?.0)
 }
 
 /// [`calibrate_files`], also writing every observation's residual next to `out`
-/// (`camera.residuals.csv`, see [`crate::residuals`]) together with it, all or nothing.
+/// (`camera.residuals.csv`, see [`crate::residuals`]) and, with `plots`, the residual plots into
+/// that directory, all together or nothing.
 pub fn calibrate_files_with_residuals(
     init: &Path,
     obs: &Path,
     control: Option<&Path>,
     out: &Path,
     options: &CalibrationOptions,
-) -> anyhow::Result<(CameraFile, Vec<crate::residuals::Residual>)> {
+    plots: Option<&Path>,
+) -> anyhow::Result<(
+    CameraFile,
+    Vec<crate::residuals::Residual>,
+    Vec<crate::calibration_plots::Plot>,
+)> {
     let start = crate::io::camera_file::read_camera(init)?;
     let observations = crate::io::observations::read_observations(obs)?;
     let control = match control {
@@ -188,8 +194,17 @@ pub fn calibrate_files_with_residuals(
     let json = serde_json::to_string_pretty(&file)? + "\n";
     let csv = crate::residuals::residuals_csv(&residuals);
     let csv_path = crate::residuals::residuals_path(out);
-    crate::io::atomic::write_all_atomic(&[(out, json.as_bytes()), (&csv_path, csv.as_bytes())])?;
-    Ok((file, residuals))
+    let [width, height] = file.image_size;
+    let made = match plots {
+        Some(_) => crate::calibration_plots::residual_plots(&residuals, width, height)?,
+        None => Vec::new(),
+    };
+    crate::plots::write_with_plots(
+        &[(out, json.as_bytes()), (&csv_path, csv.as_bytes())],
+        plots,
+        &made,
+    )?;
+    Ok((file, residuals, made))
 }
 
 #[cfg(test)]

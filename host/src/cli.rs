@@ -1,15 +1,15 @@
-//! The bodies of the `compare`, `reconstruct`, `calibrate projector`, `calibrate system` and `demo`
-//! subcommands
-//! (argument parsing stays in `main.rs`).
+//! The bodies of the `compare`, `reconstruct`, `calibrate projector` and `calibrate system`
+//! subcommands, with their arguments (flattened into `main.rs`'s command line).
 
 use crate::bundle::{calibrate, CalibrationOptions};
+use crate::calibration_plots::{control_residuals, system_plots, PlateView, Plot};
 use crate::camera_calibration::build_problem;
 use crate::compare::{assess, match_points};
-use crate::io::atomic::write_atomic;
 use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::{read_observations, Observation, PointKind};
 use crate::plates::{plate_images, plate_observations, resect_all};
+use crate::plots::write_with_plots;
 use crate::projector_calibration::{
     calibrate_projector as calibrate_projector_images, check_raised_control, DotObservation, Model,
 };
@@ -65,6 +65,31 @@ impl Output {
         let bar = indicatif::ProgressBar::new_spinner().with_message(message);
         bar.enable_steady_tick(std::time::Duration::from_millis(120));
         bar
+    }
+
+    /// Progress of `len` items: a bar with the rate on a terminal, one plain line when stderr
+    /// is not one, nothing with `--quiet`. Finish it with `finish_and_clear`.
+    pub fn counter(&self, message: String, len: u64) -> indicatif::ProgressBar {
+        use std::io::IsTerminal;
+        if self.quiet || !std::io::stderr().is_terminal() {
+            self.status(format!("{message} ..."));
+            return indicatif::ProgressBar::hidden();
+        }
+        let bar = indicatif::ProgressBar::new(len).with_message(message);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{msg}: {bar:40} {pos}/{len}, {per_sec}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    }
+}
+
+/// A `--flag` value that must be a positive finite number (σ, tolerances, distances).
+pub fn positive(text: &str) -> std::result::Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is not a positive finite number")),
+        Err(_) => Err(format!("{text:?} is not a number")),
     }
 }
 
@@ -195,23 +220,32 @@ pub fn compare(reconstructed: &Path, reference: &Path, output: Output) -> Result
 }
 
 /// Arguments of `deltaz reconstruct`.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct ReconstructArgs {
-    /// system.json.
+    /// The calibrated system (system.json).
+    #[arg(long)]
     pub system: PathBuf,
-    /// Dot observations CSV.
+    /// Dot observations.
+    #[arg(long)]
     pub obs: PathBuf,
-    /// PLY output.
+    /// Output PLY file.
+    #[arg(long)]
     pub out: PathBuf,
-    /// Optional CSV output.
+    /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here (mm).
+    #[arg(long)]
     pub csv: Option<PathBuf>,
-    /// ASCII PLY.
+    /// ASCII PLY instead of binary.
+    #[arg(long)]
     pub ascii: bool,
-    /// Image noise for σ.
+    /// Image noise (px, > 0): adds the propagated σ of every point (mm).
+    #[arg(long, value_parser = positive, allow_negative_numbers = true)]
     pub sigma_px: Option<f64>,
-    /// Intersection method.
+    /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
+    #[arg(long, default_value = "closest")]
     pub method: MethodArg,
-    /// The points' frame.
+    /// The points' frame: `camera` (the instrument's own) or `plate` (the control frame of
+    /// the datum plate image of `calibrate system`, the transform's σ included).
+    #[arg(long, default_value = "camera")]
     pub frame: FrameArg,
 }
 
@@ -268,36 +302,76 @@ pub fn reconstruct(args: &ReconstructArgs, output: Output) -> Result<()> {
     )
 }
 
-/// Arguments of `deltaz calibrate projector`.
-#[derive(Debug, Clone)]
+/// Arguments of `deltaz calibrate projector` (but for where the observations come from).
+#[derive(Debug, Clone, clap::Args)]
 pub struct ProjectorArgs {
-    /// camera.json.
+    /// camera.json (inner orientation and pixel mapping).
+    #[arg(long)]
     pub camera: PathBuf,
-    /// The plate's control CSV.
+    /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
+    #[arg(long)]
     pub control: PathBuf,
-    /// Plate observations CSV.
-    pub obs: PathBuf,
-    /// system.json to write.
+    /// Output system.json.
+    #[arg(long)]
     pub out: PathBuf,
-    /// The projector model.
+    /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
+    #[arg(long, default_value = "paper")]
     pub model: Model,
-    /// Image noise (px).
+    /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
+    #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
     pub image_sigma_px: f64,
-    /// Directory of SVG plots, if any.
-    pub plots: Option<PathBuf>,
-    /// Left-out images and rays are errors.
+    /// `--plots DIR`.
+    #[command(flatten)]
+    pub plots: PlotsArg,
+    /// Images that cannot be resected and rays seen on one plate are errors.
+    #[arg(long)]
     pub strict: bool,
+}
+
+impl PlotsArg {
+    /// Says on stderr how many plots went where.
+    pub fn report(&self, plots: &[Plot], output: Output) {
+        if let Some(dir) = &self.plots {
+            output.status(format!("{} plots -> {}", plots.len(), dir.display()));
+        }
+    }
+
+    /// Writes `files` and, with `--plots`, the plots `make` draws, all or nothing, and says
+    /// where the plots went.
+    pub fn write_with(
+        &self,
+        files: &[(&Path, &[u8])],
+        make: impl FnOnce() -> Result<Vec<Plot>>,
+        output: Output,
+    ) -> Result<()> {
+        let made = match self.plots {
+            Some(_) => make()?,
+            None => Vec::new(),
+        };
+        write_with_plots(files, self.plots.as_deref(), &made)?;
+        self.report(&made, output);
+        Ok(())
+    }
+}
+
+/// `--plots DIR` of the calibration commands.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct PlotsArg {
+    /// Also write SVG plots into this directory: image residual vectors per image, their
+    /// histogram against the normal distribution, and (projector, system) the rays' miss
+    /// distances and an accuracy map of every plate image (its dots off the plate, mm).
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
 }
 
 /// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
 /// system.json written atomically only when everything succeeded. Images too poorly controlled
 /// to resect and rays seen on one plate are left out (or, central models, determined through the
 /// centre) and listed on stderr and in the file; `strict` makes them errors.
-pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
+pub fn calibrate_projector(args: &ProjectorArgs, obs: &Path, output: Output) -> Result<()> {
     let ProjectorArgs {
         camera,
         control,
-        obs,
         out,
         model,
         image_sigma_px,
@@ -334,19 +408,28 @@ pub fn calibrate_projector(args: &ProjectorArgs, output: Output) -> Result<()> {
     report_warnings(obs, &warnings, strict)?;
     let mut content = SystemContent::new(grid, inner, images[0].exterior, &projector);
     content.warnings = warnings;
-    content.rig()?;
+    let rig = content.rig()?;
     let file = SystemFile::new(content)?;
-    write_atomic(out, file.to_json()?.as_bytes())?;
-    if let Some(dir) = plots {
+    let json = file.to_json()?;
+    let make = || {
         let rays: Vec<_> = projector
             .rays
             .iter()
             .map(|r| (r.id, r.miss_rms, r.miss_max))
             .collect();
-        let svg = crate::plots::ray_misses(&rays)?;
-        crate::plots::write_plots(dir, &[("ray_misses.svg", svg)])?;
-        output.status(format!("plot -> {}", dir.join("ray_misses.svg").display()));
-    }
+        let plates: Vec<_> = images
+            .iter()
+            .zip(&poses)
+            .map(|(i, (image, _))| PlateView {
+                image,
+                exterior: i.exterior,
+                dots: &i.dots,
+            })
+            .collect();
+        let residuals = control_residuals(&grid, &inner, &poses, &observations, &control_points);
+        system_plots(&residuals, &grid, &rays, &rig, &plates)
+    };
+    plots.write_with(&[(out, json.as_bytes())], make, output)?;
     let worst = projector
         .rays
         .iter()
@@ -400,24 +483,35 @@ fn report_warnings(obs: &Path, warnings: &Warnings, strict: bool) -> Result<()> 
 }
 
 /// Arguments of `deltaz calibrate system`.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct SystemArgs {
-    /// camera_init.json.
+    /// The starting sensor: camera_init.json (pixel mapping, approximate f).
+    #[arg(long)]
     pub init: PathBuf,
-    /// Field target observations.
+    /// Target-field observations CSV.
+    #[arg(long)]
     pub camera_obs: PathBuf,
-    /// Field control (None: free network).
+    /// Target-field control CSV (without it the field network is free).
+    #[arg(long)]
     pub camera_control: Option<PathBuf>,
-    /// Plate control.
+    /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
+    #[arg(long)]
     pub control: PathBuf,
-    /// Plate observations (targets and dots).
+    /// Plate observations CSV (`control` rows resect, `dot` rows calibrate the projector).
+    #[arg(long)]
     pub obs: PathBuf,
     /// Output system.json.
+    #[arg(long)]
     pub out: PathBuf,
-    /// Every ray a free line.
+    /// Every ray a free line (rays seen on one plate are then left out).
+    #[arg(long)]
     pub noncentral: bool,
-    /// Left-out images and rays are errors.
+    /// Images that cannot be resected and rays seen on one plate are errors.
+    #[arg(long)]
     pub strict: bool,
+    /// `--plots DIR`.
+    #[command(flatten)]
+    pub plots: PlotsArg,
 }
 
 /// `deltaz calibrate system`: the camera by bundle adjustment and the plate images by resection
@@ -426,7 +520,7 @@ pub struct SystemArgs {
 /// targets, plate targets, dots); system.json in the camera system with the covariance a
 /// point's σ needs. Images that cannot be resected and rays seen on one plate are listed (in the file
 /// too); `--strict` makes them errors. Nothing is written if anything fails.
-pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
+pub fn calibrate_system(args: &SystemArgs, output: Output) -> Result<()> {
     let start = read_camera(&args.init)?;
     let grid = start.grid();
     let field = read_observations(&args.camera_obs)?;
@@ -435,7 +529,7 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
         None => Vec::new(),
     };
     let options = CalibrationOptions::default();
-    let progress = Output::default().progress(format!(
+    let progress = output.progress(format!(
         "calibrating the system from {} and {}",
         args.camera_obs.display(),
         args.obs.display()
@@ -462,7 +556,7 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
         inner,
         camera: CameraSource::Field(&camera.problem),
         control: &control,
-        plates,
+        plates: plates.clone(),
         noncentral: args.noncentral,
         image_sigma_px: 0.5,
     })
@@ -479,21 +573,61 @@ pub fn calibrate_system(args: &SystemArgs) -> Result<()> {
     };
     report_warnings(&args.obs, &warnings, args.strict)?;
     let content = SystemContent::from_adjustment(grid, &adjustment, args.noncentral, warnings);
-    content.rig()?;
+    let rig = content.rig()?;
     let file = SystemFile::new(content)?;
-    write_atomic(&args.out, file.to_json()?.as_bytes())?;
+    let json = file.to_json()?;
+    let make = || {
+        let residuals = crate::residuals::residuals(&camera, &field);
+        let rays: Vec<_> = adjustment
+            .model
+            .rays
+            .iter()
+            .map(|r| (r.id, r.miss_rms, r.miss_max))
+            .collect();
+        let views: Vec<_> = plates
+            .iter()
+            .zip(&adjustment.poses)
+            .map(|(p, exterior)| PlateView {
+                image: &p.image,
+                exterior: *exterior,
+                dots: &p.dots,
+            })
+            .collect();
+        system_plots(&residuals, &grid, &rays, &rig, &views)
+    };
+    args.plots
+        .write_with(&[(&args.out, json.as_bytes())], make, output)?;
     let m = &adjustment.model;
-    println!(
-        "system: centre {:.3?} mm (σ {:.3?}) in the camera system, {} rays; σ0 field targets \
-         {:.3} px, plate targets {:.3} px, dots {:.3} px; fingerprint {} -> {}",
-        m.centre.as_slice(),
-        m.centre_sigma().as_slice(),
-        m.rays.len(),
-        adjustment.sigma_field_px.unwrap_or(f64::NAN),
-        adjustment.sigma_targets_px,
-        m.sigma_dots_px,
-        file.fingerprint,
-        args.out.display()
-    );
-    Ok(())
+    let sigma = m.centre_sigma();
+    output.result(
+        &format!(
+            "system: projector centre ({:.2}, {:.2}, {:.2}) ± ({:.2}, {:.2}, {:.2}) mm in the \
+             camera system, {} rays; σ0 field targets {}, plate targets {:.3} px, dots {:.3} px; \
+             fingerprint {} -> {}\n",
+            m.centre.x,
+            m.centre.y,
+            m.centre.z,
+            sigma.x,
+            sigma.y,
+            sigma.z,
+            m.rays.len(),
+            adjustment
+                .sigma_field_px
+                .map_or_else(|| "–".to_owned(), |s| format!("{s:.3} px")),
+            adjustment.sigma_targets_px,
+            m.sigma_dots_px,
+            file.fingerprint,
+            args.out.display()
+        ),
+        &serde_json::json!({
+            "centre_mm": m.centre.as_slice(),
+            "centre_sigma_mm": sigma.as_slice(),
+            "rays": m.rays.len(),
+            "sigma_field_px": adjustment.sigma_field_px,
+            "sigma_targets_px": adjustment.sigma_targets_px,
+            "sigma_dots_px": m.sigma_dots_px,
+            "fingerprint": file.fingerprint,
+            "out": args.out,
+        }),
+    )
 }

@@ -1,17 +1,17 @@
 //! The bodies of `deltaz device ports|info|upload|stream` (argument parsing stays in `main.rs`).
 
-use crate::cli::dot_observations;
-use crate::io::atomic::write_atomic;
+use crate::cli::{dot_observations, Output};
+use crate::io::atomic::write_all_atomic;
 use crate::io::observations::read_observations;
 use crate::link::{
     Device, DeviceError, InProcess, PointOutcome, Qemu, Serial, Transport, WorldPoint,
 };
-use crate::ply::{write_ply, Encoding};
+use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
 use crate::reconstruct::ReconstructedPoint;
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_shared::protocol::calibration::IdentifyParams;
-use deltaz_shared::protocol::{PointStatus, MAX_BATCH, MAX_RAYS};
+use deltaz_shared::protocol::{CalibrationSummary, PointStatus, MAX_BATCH, MAX_RAYS};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -27,8 +27,8 @@ pub struct LinkArgs {
     pub qemu: Option<PathBuf>,
     /// Response timeout.
     pub timeout: Duration,
-    /// Print one JSON object on stdout instead of text.
-    pub json: bool,
+    /// Text or one JSON object on stdout; status on stderr unless quiet.
+    pub output: Output,
 }
 
 /// Whatever transport the arguments name.
@@ -78,7 +78,7 @@ pub fn info(args: &LinkArgs) -> Result<()> {
     let mut device = connect(args)?;
     let i = device.info()?;
     let [a, b, c] = i.firmware;
-    if args.json {
+    if args.output.json {
         let calibration = i.calibration.map(|s| {
             serde_json::json!({
                 "fingerprint": format!("{:016x}", s.fingerprint),
@@ -123,10 +123,20 @@ pub fn info(args: &LinkArgs) -> Result<()> {
     Ok(())
 }
 
+/// A system.json loaded for the device: the rig and its fingerprint.
+pub type LoadedSystem = (SystemRig, u64);
+
 /// Load `system.json`: the rig and its fingerprint; refused when it has more rays than a
 /// device holds ([`MAX_RAYS`]).
-pub fn load_system(path: &Path) -> Result<(SystemRig, u64)> {
+pub fn load_system(path: &Path) -> Result<LoadedSystem> {
     let (file, rig) = SystemFile::load(path)?;
+    check_capacity(path, &file)?;
+    let fingerprint = file.fingerprint_u64()?;
+    Ok((rig, fingerprint))
+}
+
+/// Refuses a system with more rays than a device holds ([`MAX_RAYS`]).
+pub fn check_capacity(path: &Path, file: &SystemFile) -> Result<()> {
     let rays = file.content.projector.rays.len();
     if rays > MAX_RAYS {
         bail!(
@@ -134,48 +144,47 @@ pub fn load_system(path: &Path) -> Result<(SystemRig, u64)> {
             path.display()
         );
     }
-    let fingerprint = file.fingerprint_u64()?;
-    Ok((rig, fingerprint))
+    Ok(())
 }
 
 /// Upload `system` to `device` (with the parameters to identify unlabelled dots, if given) and
-/// say so.
+/// say so on stderr.
 fn upload_to(
     device: &mut AnyDevice,
-    system: &Path,
-    (rig, fingerprint): &(SystemRig, u64),
+    link: &LinkArgs,
+    (system, rig, fingerprint): (&Path, &SystemRig, u64),
     method: Method,
     identification: Option<IdentifyParams>,
-) -> Result<u64> {
+) -> Result<CalibrationSummary> {
     let s = device
-        .upload_identifying(rig, *fingerprint, method, identification)
+        .upload_identifying(rig, fingerprint, method, identification)
         .with_context(|| format!("uploading {}", system.display()))?;
-    eprintln!(
+    link.output.status(format!(
         "uploaded {} ({} rays): fingerprint {:016x} read back, generation {}",
         system.display(),
         s.rays,
         s.fingerprint,
         s.generation
-    );
-    Ok(*fingerprint)
+    ));
+    Ok(s)
 }
 
-/// Check that `device` holds `system`'s calibration (its fingerprint); upload it (with
-/// `identification`) when it does not and the device is in-process or in QEMU (fresh each
-/// time) or `upload` says so, else fail saying how.
+/// Check that `device` holds the calibration (`rig` with `fingerprint`) loaded from `system`;
+/// upload it (with `identification`) when it does not and the device is in-process or in QEMU
+/// (fresh each time) or `upload` says so, else fail saying how.
 pub fn ensure_calibration(
     device: &mut AnyDevice,
     link: &LinkArgs,
-    system: &Path,
+    (system, rig, fingerprint): (&Path, &SystemRig, u64),
     method: Method,
     identification: Option<IdentifyParams>,
     upload: bool,
 ) -> Result<()> {
-    let loaded = load_system(system)?;
-    match device.expect_calibration(loaded.1) {
+    match device.expect_calibration(fingerprint) {
         Ok(_) => Ok(()),
         Err(DeviceError::Fingerprint { .. }) if upload || link.port.is_none() => {
-            upload_to(device, system, &loaded, method, identification).map(|_| ())
+            let system = (system, rig, fingerprint);
+            upload_to(device, link, system, method, identification).map(|_| ())
         }
         Err(e @ DeviceError::Fingerprint { .. }) => Err(e).context(format!(
             "the device does not hold the calibration of {}: run `deltaz device upload` \
@@ -186,21 +195,49 @@ pub fn ensure_calibration(
     }
 }
 
-/// `deltaz device upload system.json`.
+/// `deltaz device upload system.json`: status on stderr; with `--json` one object on stdout
+/// (the calibration the device read back, the method and identification parameters).
 pub fn upload(
     args: &LinkArgs,
     system: &Path,
     method: Method,
     identification: Option<IdentifyParams>,
 ) -> Result<()> {
-    let loaded = load_system(system)?;
+    let (rig, fingerprint) = load_system(system)?;
     let mut device = connect(args)?;
-    upload_to(&mut device, system, &loaded, method, identification)?;
+    let s = upload_to(
+        &mut device,
+        args,
+        (system, &rig, fingerprint),
+        method,
+        identification,
+    )?;
     if args.port.is_none() {
-        eprintln!(
+        args.output.status(
             "note: the in-process and QEMU devices live only as long as this command; \
-             `deltaz device stream --system` uploads to them itself"
+             `deltaz device stream --system` uploads to them itself",
         );
+    }
+    if args.output.json {
+        let json = serde_json::json!({
+            "system": system,
+            "fingerprint": format!("{:016x}", s.fingerprint),
+            "generation": s.generation,
+            "rays": s.rays,
+            "centroid_bits": s.centroid_bits,
+            "method": match method {
+                Method::Paper => "paper",
+                Method::ClosestApproach => "closest",
+            },
+            "identification": identification.map(|i| serde_json::json!({
+                "near_mm": i.near,
+                "far_mm": i.far,
+                "tolerance_px": i.tolerance,
+                "cell_px": i.cell,
+            })),
+            "persistent": args.port.is_some(),
+        });
+        println!("{json}");
     }
     Ok(())
 }
@@ -229,7 +266,7 @@ pub struct StreamArgs {
     pub source: StreamSource,
     /// PLY output.
     pub out: Option<PathBuf>,
-    /// CSV output `image,point,X,Y,Z,miss`.
+    /// CSV output `image,point,X,Y,Z,miss,saturated`.
     pub csv: Option<PathBuf>,
     /// Intersection method for an upload.
     pub method: Method,
@@ -275,24 +312,110 @@ fn stream_group(
         .collect())
 }
 
-/// `deltaz device stream`: frames in, points out, with a live points/s figure.
-pub fn stream(args: &StreamArgs) -> Result<()> {
-    // The system is checked (its rays against the device's capacity) before connecting.
-    if let Some(system) = &args.system {
-        load_system(system)?;
+/// What became of every dot a stream sent: a point (its miss distance possibly saturated),
+/// not identified, or no point, each by the device's reason.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DotCounts {
+    /// Points.
+    pub points: usize,
+    /// Points whose miss distance is the wire format's saturated value (a lower bound).
+    pub saturated: usize,
+    /// Identification: no ray's epipolar segment within tolerance.
+    pub unassigned: usize,
+    /// Identification: two or more segments within tolerance.
+    pub ambiguous: usize,
+    /// Identification: another dot of the frame took the same ray.
+    pub conflict: usize,
+    /// No point: the calibration has no ray with the id.
+    pub unknown_ray: usize,
+    /// No point: camera and projector rays (nearly) parallel.
+    pub degenerate: usize,
+    /// No point: farther than the wire format's range from the camera.
+    pub out_of_range: usize,
+    /// No point: the centroid is off the sensor.
+    pub off_sensor: usize,
+}
+
+impl DotCounts {
+    /// Counts one dot's outcome.
+    pub fn add(&mut self, outcome: &PointOutcome) {
+        let n = match outcome {
+            Ok(p) => {
+                self.saturated += usize::from(p.miss >= crate::scan::miss_saturated_mm());
+                &mut self.points
+            }
+            Err(PointStatus::Unassigned) => &mut self.unassigned,
+            Err(PointStatus::Ambiguous) => &mut self.ambiguous,
+            Err(PointStatus::Conflict) => &mut self.conflict,
+            Err(PointStatus::UnknownRay) => &mut self.unknown_ray,
+            Err(PointStatus::Degenerate) => &mut self.degenerate,
+            Err(PointStatus::OutOfRange) => &mut self.out_of_range,
+            Err(PointStatus::OffSensor) => &mut self.off_sensor,
+        };
+        *n += 1;
     }
-    let mut device = connect(&args.link)?;
-    if let Some(system) = &args.system {
-        ensure_calibration(
-            &mut device,
-            &args.link,
-            system,
-            args.method,
-            args.identification,
-            false,
-        )?;
+
+    /// Dots not identified.
+    pub fn unidentified(&self) -> usize {
+        self.unassigned + self.ambiguous + self.conflict
     }
-    let frames = match &args.source {
+
+    /// Dots with a ray but no point.
+    pub fn without_point(&self) -> usize {
+        self.unknown_ray + self.degenerate + self.out_of_range + self.off_sensor
+    }
+
+    /// Every dot counted.
+    pub fn dots(&self) -> usize {
+        self.points + self.unidentified() + self.without_point()
+    }
+
+    /// For people: every dot accounted for, the three groups adding up to the dots sent.
+    pub fn text(&self) -> String {
+        format!(
+            "{} dots: {} points ({} with the saturated miss distance ≥ {:.2} mm, a lower bound), \
+             {} not identified ({} unassigned, {} ambiguous, {} conflicts), {} without a point \
+             ({} unknown ray, {} degenerate, {} out of range, {} off the sensor)",
+            self.dots(),
+            self.points,
+            self.saturated,
+            crate::scan::miss_saturated_mm(),
+            self.unidentified(),
+            self.unassigned,
+            self.ambiguous,
+            self.conflict,
+            self.without_point(),
+            self.unknown_ray,
+            self.degenerate,
+            self.out_of_range,
+            self.off_sensor
+        )
+    }
+
+    /// For machines.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "dots": self.dots(),
+            "points": self.points,
+            "saturated_miss": self.saturated,
+            "unidentified": self.unidentified(),
+            "without_point": self.without_point(),
+            "reasons": {
+                "unassigned": self.unassigned,
+                "ambiguous": self.ambiguous,
+                "conflict": self.conflict,
+                "unknown_ray": self.unknown_ray,
+                "degenerate": self.degenerate,
+                "out_of_range": self.out_of_range,
+                "off_sensor": self.off_sensor,
+            },
+        })
+    }
+}
+
+/// The frames of a stream: from the observations CSV, or simulated on the system's plates.
+fn stream_frames(args: &StreamArgs, loaded: Option<&LoadedSystem>) -> Result<Vec<Frame>> {
+    Ok(match &args.source {
         StreamSource::Csv(path) => {
             let obs = read_observations(path)?;
             let dots = dot_observations(path, &obs)?;
@@ -306,18 +429,37 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
             frames
         }
         StreamSource::Simulated { frames } => {
-            let Some(system) = &args.system else {
+            let Some((rig, _)) = loaded else {
                 bail!("a simulated stream needs --system");
             };
-            let (rig, _) = load_system(system)?;
             (0..*frames)
                 .map(|k| {
                     let z = 100.0 * (k % 3) as f64;
-                    (format!("sim{k}"), plate_dots(&rig, z))
+                    (format!("sim{k}"), plate_dots(rig, z))
                 })
                 .collect()
         }
-    };
+    })
+}
+
+/// `deltaz device stream`: frames in, points out, with a progress bar on a terminal; the PLY
+/// and CSV are written together when every frame went through, else neither.
+pub fn stream(args: &StreamArgs) -> Result<()> {
+    // The system is loaded once and checked (its rays against the device's capacity) before
+    // connecting.
+    let loaded = args.system.as_deref().map(load_system).transpose()?;
+    let mut device = connect(&args.link)?;
+    if let (Some(system), Some((rig, fingerprint))) = (&args.system, &loaded) {
+        ensure_calibration(
+            &mut device,
+            &args.link,
+            (system, rig, *fingerprint),
+            args.method,
+            args.identification,
+            false,
+        )?;
+    }
+    let frames = stream_frames(args, loaded.as_ref())?;
     if args.identify {
         if let Some((image, frame)) = frames.iter().find(|(_, f)| f.len() > MAX_BATCH) {
             bail!(
@@ -326,107 +468,103 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
             );
         }
     }
+    let fingerprint = match &loaded {
+        Some((_, fingerprint)) => Some(*fingerprint),
+        None => device.info()?.calibration.map(|c| c.fingerprint),
+    };
+    let total: usize = frames.iter().map(|(_, f)| f.len()).sum();
+    let bar = args.link.output.counter(
+        format!("streaming {total} dots in {} frames", frames.len()),
+        total as u64,
+    );
     let start = Instant::now();
-    let mut shown = Instant::now();
-    let mut progress = false;
-    let (mut points, mut failed, mut csv) =
-        (Vec::new(), 0usize, String::from("image,point,X,Y,Z,miss\n"));
-    let mut unidentified = 0usize;
-    // Groups of frames, each pipelined (several requests in flight), between progress lines.
-    for group in frames.chunks(STREAM_GROUP) {
-        let results = stream_group(&mut device, group, args.identify).inspect_err(|_| {
-            if progress {
-                // The error goes on its own line, not after the progress counter.
-                eprintln!();
-            }
-        })?;
-        for ((image, _), results) in group.iter().zip(results) {
+    let mut counts = DotCounts::default();
+    let (mut points, mut point_frames) = (Vec::new(), Vec::new());
+    let mut csv = String::from("image,point,X,Y,Z,miss,saturated\n");
+    // Groups of frames, each pipelined (several requests in flight), between progress updates.
+    for (g, group) in frames.chunks(STREAM_GROUP).enumerate() {
+        let results = stream_group(&mut device, group, args.identify)?;
+        for (k, ((image, _), results)) in group.iter().zip(results).enumerate() {
             for (id, r) in results {
-                match r {
-                    Ok(WorldPoint { point, miss }) => {
-                        csv +=
-                            &format!("{image},{id},{},{},{},{miss}\n", point.x, point.y, point.z);
-                        points.push(ReconstructedPoint {
-                            id,
-                            point,
-                            miss,
-                            sigma: None,
-                        });
-                    }
-                    Err(
-                        PointStatus::Unassigned | PointStatus::Ambiguous | PointStatus::Conflict,
-                    ) => unidentified += 1,
-                    Err(_) => failed += 1,
-                }
+                counts.add(&r);
+                let Ok(WorldPoint { point, miss }) = r else {
+                    continue;
+                };
+                let saturated = u8::from(miss >= crate::scan::miss_saturated_mm());
+                csv += &format!(
+                    "{image},{id},{},{},{},{miss},{saturated}\n",
+                    point.x, point.y, point.z
+                );
+                points.push(ReconstructedPoint {
+                    id,
+                    point,
+                    miss,
+                    sigma: None,
+                });
+                point_frames.push((g * STREAM_GROUP + k) as u32);
             }
         }
-        if shown.elapsed() > Duration::from_millis(500) && !args.link.json {
-            shown = Instant::now();
-            progress = true;
-            let n = points.len() + failed + unidentified;
-            eprint!(
-                "\r{n} points, {:.0} points/s",
-                n as f64 / start.elapsed().as_secs_f64()
-            );
-        }
+        bar.set_position(counts.dots() as u64);
     }
+    bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
-    let n = points.len() + failed + unidentified;
+    let n = counts.dots();
     let (sent, received) = device.byte_counts();
     let line = device.line_counts();
-    let bytes_per_point = (sent + received) as f64 / n.max(1) as f64;
-    if args.link.json {
+    let bytes_per_dot = (sent + received) as f64 / n.max(1) as f64;
+    let ply = args.out.as_ref().map(|_| {
+        let info = CloudInfo {
+            frame: RIG_FRAME.to_owned(),
+            fingerprint: fingerprint.map(|f| format!("{f:016x}")),
+            frames: Some(point_frames),
+        };
+        encode_with(&points, Encoding::BinaryLittleEndian, &info)
+    });
+    let files: Vec<(&Path, &[u8])> = [
+        args.out.as_deref().zip(ply.as_deref()),
+        args.csv.as_deref().map(|p| (p, csv.as_bytes())),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    write_all_atomic(&files)?;
+    if args.link.output.json {
         let stats = device.stats().context("reading the device's statistics")?;
-        let json = serde_json::json!({
-            "frames": frames.len(),
-            "points": points.len(),
-            "without_point": failed,
-            "unidentified": unidentified,
-            "seconds": seconds,
-            "points_per_s": n as f64 / seconds,
-            "bytes_sent": sent,
-            "bytes_received": received,
-            "bytes_per_point": bytes_per_point,
-            "line": {
-                "resent": line.resent,
-                "damaged": line.damaged,
-                "unreadable": line.unreadable,
-                "stale": line.stale,
-            },
-            "stats": {
-                "requests": stats.requests,
-                "bad_frames": stats.bad_frames,
-                "points": stats.points,
-                "last_compute_ticks": stats.last_compute_ticks,
-                "last_compute_points": stats.last_compute_points,
-                "stack_peak_bytes": stats.stack_peak,
-            },
+        let mut json = counts.json();
+        json["frames"] = frames.len().into();
+        json["seconds"] = seconds.into();
+        json["dots_per_s"] = (n as f64 / seconds).into();
+        json["bytes_sent"] = sent.into();
+        json["bytes_received"] = received.into();
+        json["bytes_per_dot"] = bytes_per_dot.into();
+        json["line"] = serde_json::json!({
+            "resent": line.resent,
+            "damaged": line.damaged,
+            "unreadable": line.unreadable,
+            "stale": line.stale,
+        });
+        json["stats"] = serde_json::json!({
+            "requests": stats.requests,
+            "bad_frames": stats.bad_frames,
+            "points": stats.points,
+            "last_compute_ticks": stats.last_compute_ticks,
+            "last_compute_points": stats.last_compute_points,
+            "stack_peak_bytes": stats.stack_peak,
         });
         println!("{json}");
     } else {
-        if progress {
-            eprintln!();
-        }
-        if args.identify {
-            eprintln!("{unidentified} dots not identified (unassigned, ambiguous or conflicts)");
-        }
-        eprintln!(
-            "{n} points in {} frames, {:.0} points/s, {bytes_per_point:.2} bytes per point on the link, {failed} without a point",
+        println!(
+            "{} in {} frames; {:.0} dots/s, {bytes_per_dot:.2} bytes per dot on the link",
+            counts.text(),
             frames.len(),
             n as f64 / seconds,
         );
-        if line.resent > 0 {
-            eprintln!(
-                "the link resent {} requests ({} damaged frames, {} unreadable, {} stale answers)",
-                line.resent, line.damaged, line.unreadable, line.stale
-            );
-        }
     }
-    if let Some(out) = &args.out {
-        write_ply(out, &points, Encoding::BinaryLittleEndian)?;
-    }
-    if let Some(path) = &args.csv {
-        write_atomic(path, csv.as_bytes())?;
+    if line.resent > 0 {
+        args.link.output.status(format!(
+            "the link resent {} requests ({} damaged frames, {} unreadable, {} stale answers)",
+            line.resent, line.damaged, line.unreadable, line.stale
+        ));
     }
     Ok(())
 }

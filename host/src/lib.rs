@@ -4,6 +4,7 @@
 
 pub mod accuracy;
 pub mod board_calibration;
+pub mod calibration_plots;
 pub mod camera_calibration;
 pub mod cli;
 pub mod demo;

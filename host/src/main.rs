@@ -1,5 +1,6 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
+use deltaz_host::calibration_plots::residual_plots;
 use deltaz_host::{bundle, cli, demo, device_cli, io, measure, scan, simulate};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -51,31 +52,8 @@ enum Command {
     /// with a `kind` column only the `dot` rows) into a PLY point cloud: X, Y, Z in mm in the rig
     /// frame (the frame of the 1st plate image of the projector calibration).
     Reconstruct {
-        /// The calibrated system (system.json).
-        #[arg(long)]
-        system: PathBuf,
-        /// Dot observations.
-        #[arg(long)]
-        obs: PathBuf,
-        /// Output PLY file.
-        #[arg(long)]
-        out: PathBuf,
-        /// Also write a CSV `image,point,X,Y,Z,miss[,sigma_X,sigma_Y,sigma_Z]` here (mm).
-        #[arg(long)]
-        csv: Option<PathBuf>,
-        /// ASCII PLY instead of binary.
-        #[arg(long)]
-        ascii: bool,
-        /// Image noise (px, > 0): adds the propagated σ of every point (mm).
-        #[arg(long, value_parser = positive, allow_negative_numbers = true)]
-        sigma_px: Option<f64>,
-        /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
-        #[arg(long, default_value = "closest")]
-        method: cli::MethodArg,
-        /// The points' frame: `camera` (the instrument's own) or `plate` (the control frame of
-        /// the datum plate image of `calibrate system`, the transform's σ included).
-        #[arg(long, default_value = "camera")]
-        frame: cli::FrameArg,
+        #[command(flatten)]
+        args: cli::ReconstructArgs,
         #[command(flatten)]
         output: cli::Output,
     },
@@ -145,8 +123,11 @@ enum Command {
         #[arg(long)]
         far: Option<f64>,
         /// Largest distance of a dot from its ray's epipolar segment (px).
-        #[arg(long, default_value_t = 1.0, value_parser = positive, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 1.0, value_parser = cli::positive, allow_negative_numbers = true)]
         tolerance: f64,
+        /// With --system: also one line per dot that is not identified, and why.
+        #[arg(long, requires = "system")]
+        verbose: bool,
     },
     /// Timings of image measurement: 768 x 512 with 440 dots, 12 MP with 4,000 dots.
     BenchMeasure {
@@ -250,14 +231,17 @@ enum ExportWhat {
     },
 }
 
-/// How to reach the device.
+/// How to reach the device, and how to report.
 #[derive(clap::Args)]
 struct LinkOpts {
     #[command(flatten)]
     device: DeviceOpts,
-    /// `info` and `stream`: print one JSON object on stdout.
+    /// `info`, `upload` and `stream`: print one JSON object on stdout (status on stderr).
     #[arg(long, global = true)]
     json: bool,
+    /// No status lines or progress on stderr (errors are still printed).
+    #[arg(long, global = true)]
+    quiet: bool,
 }
 
 /// The device's port, or QEMU, or (neither) the firmware's logic in-process.
@@ -282,7 +266,10 @@ struct DeviceOpts {
 impl LinkOpts {
     fn args(&self) -> device_cli::LinkArgs {
         device_cli::LinkArgs {
-            json: self.json,
+            output: cli::Output {
+                json: self.json,
+                quiet: self.quiet,
+            },
             ..self.device.args()
         }
     }
@@ -301,7 +288,7 @@ impl DeviceOpts {
                 }
             }),
             timeout: std::time::Duration::from_millis(self.timeout_ms),
-            json: false,
+            output: cli::Output::default(),
         }
     }
 }
@@ -333,7 +320,9 @@ enum DeviceWhat {
         identification: DeviceIdentifyArgs,
     },
     /// Stream centroids (an observations CSV, one frame per image, or simulated frames) through
-    /// the device into PLY and/or CSV, with a live points/s figure.
+    /// the device into PLY and/or CSV (both written, or neither when the stream fails), with a
+    /// progress bar; says what became of every dot sent: a point, not identified, or no point,
+    /// each by reason.
     Stream {
         /// The system the device must hold (uploaded first to an in-process or QEMU device).
         #[arg(long)]
@@ -345,10 +334,11 @@ enum DeviceWhat {
         /// 200 mm.
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
         simulate: Option<u32>,
-        /// Output PLY (binary).
+        /// Output PLY (binary; mm, rig frame, the calibration's fingerprint, each point's frame).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Output CSV `image,point,X,Y,Z,miss`.
+        /// Output CSV `image,point,X,Y,Z,miss,saturated` (mm; saturated = 1: the device's miss
+        /// distance is at its wire limit, a lower bound).
         #[arg(long)]
         csv: Option<PathBuf>,
         /// Intersection on the device when uploading.
@@ -400,18 +390,9 @@ impl DeviceIdentifyArgs {
     }
 }
 
-/// A `--flag` value that must be a positive finite number (σ, tolerances, distances).
-fn positive(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Ok(v) => Err(format!("{v} is not a positive finite number")),
-        Err(_) => Err(format!("{text:?} is not a number")),
-    }
-}
-
-/// [`positive`] for the device's single-precision parameters.
+/// [`cli::positive`] for the device's single-precision parameters.
 fn positive_f32(text: &str) -> Result<f32, String> {
-    positive(text).map(|v| v as f32)
+    cli::positive(text).map(|v| v as f32)
 }
 
 /// A `--flag A,B` value: two comma-separated numbers.
@@ -440,7 +421,7 @@ struct ImageFolder {
     #[arg(long, value_delimiter = ',', requires = "images")]
     distinct: Option<Vec<String>>,
     /// With --images: tolerance (px) of the layout match.
-    #[arg(long, default_value_t = 8.0, value_parser = positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 8.0, value_parser = cli::positive, allow_negative_numbers = true)]
     tolerance: f64,
 }
 
@@ -465,12 +446,8 @@ enum CalibrateWhat {
     /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
     /// writes system.json ("deltaz.system/1").
     Projector {
-        /// camera.json (inner orientation and pixel mapping).
-        #[arg(long)]
-        camera: PathBuf,
-        /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
-        #[arg(long)]
-        control: PathBuf,
+        #[command(flatten)]
+        args: cli::ProjectorArgs,
         /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
         /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
         #[arg(long, required_unless_present = "images")]
@@ -490,52 +467,17 @@ enum CalibrateWhat {
         /// With --images: image direction COL,ROW in which the pattern's row index grows.
         #[arg(long, value_parser = pair::<f64>, default_value = "0,-1", allow_hyphen_values = true)]
         row_dir: [f64; 2],
-        /// Output system.json.
-        #[arg(long)]
-        out: PathBuf,
-        /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
-        #[arg(long, default_value = "paper")]
-        model: deltaz_host::projector_calibration::Model,
-        /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
-        #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
-        image_sigma_px: f64,
-        /// Also write SVG plots into this directory (residuals, miss distances).
-        #[arg(long)]
-        plots: Option<PathBuf>,
         #[command(flatten)]
         output: cli::Output,
-        /// Images that cannot be resected and rays seen on one plate are errors.
-        #[arg(long)]
-        strict: bool,
     },
     /// Camera and projector in one: the camera by bundle adjustment, then plates, control,
     /// projector and camera (as a prior) in one whole-system adjustment with variance components;
     /// system.json in the camera system with the covariance a point's σ needs.
     System {
-        /// The starting sensor: camera_init.json (pixel mapping, approximate f).
-        #[arg(long)]
-        init: PathBuf,
-        /// Target-field observations CSV.
-        #[arg(long)]
-        camera_obs: PathBuf,
-        /// Target-field control CSV (without it the field network is free).
-        #[arg(long)]
-        camera_control: Option<PathBuf>,
-        /// The plate's control CSV (point,X,Y,Z,sigma; plate surface at Z = 0).
-        #[arg(long)]
-        control: PathBuf,
-        /// Plate observations CSV (`control` rows resect, `dot` rows calibrate the projector).
-        #[arg(long)]
-        obs: PathBuf,
-        /// Output system.json.
-        #[arg(long)]
-        out: PathBuf,
-        /// Every ray a free line (rays seen on one plate are then left out).
-        #[arg(long)]
-        noncentral: bool,
-        /// Images that cannot be resected and rays seen on one plate are errors.
-        #[arg(long)]
-        strict: bool,
+        #[command(flatten)]
+        args: cli::SystemArgs,
+        #[command(flatten)]
+        output: cli::Output,
     },
     /// Camera calibration by self-calibrating bundle adjustment (f, cx, cy, k1 by default).
     Camera {
@@ -592,11 +534,10 @@ enum CalibrateWhat {
         #[arg(long)]
         free_network: bool,
         /// A priori σ of image coordinates (px, > 0), weighting control against images.
-        #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
+        #[arg(long, default_value_t = 0.5, value_parser = cli::positive, allow_negative_numbers = true)]
         image_sigma_px: f64,
-        /// Also write SVG plots into this directory (residuals, miss distances).
-        #[arg(long)]
-        plots: Option<PathBuf>,
+        #[command(flatten)]
+        plots: cli::PlotsArg,
         #[command(flatten)]
         output: cli::Output,
     },
@@ -656,6 +597,30 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// The end of `calibrate camera`: the residuals' summary (with the σ0 warning) and where the
+/// files went on stderr, the calibrated camera on stdout (text or JSON).
+fn camera_result(
+    file: &io::camera_file::CameraFile,
+    residuals: &[deltaz_host::residuals::Residual],
+    options: &bundle::CalibrationOptions,
+    out: &std::path::Path,
+    output: cli::Output,
+) -> anyhow::Result<()> {
+    output.status(format!(
+        "{}camera calibration -> {}, residuals -> {}",
+        deltaz_host::residuals::summary(
+            residuals,
+            file.sigma0.unwrap_or(f64::NAN) / file.pixel_size,
+            options.image_sigma_px
+        ),
+        out.display(),
+        deltaz_host::residuals::residuals_path(out).display()
+    ));
+    let mut json = serde_json::to_value(file)?;
+    json["out"] = serde_json::json!(out);
+    output.result(&cli::camera_summary(file, &options.free.inner), &json)
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
@@ -726,29 +691,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             reference,
             output,
         } => cli::compare(&reconstructed, &reference, output)?,
-        Command::Reconstruct {
-            system,
-            obs,
-            out,
-            csv,
-            ascii,
-            sigma_px,
-            method,
-            frame,
-            output,
-        } => cli::reconstruct(
-            &cli::ReconstructArgs {
-                system,
-                obs,
-                out,
-                csv,
-                ascii,
-                sigma_px,
-                method,
-                frame,
-            },
-            output,
-        )?,
+        Command::Reconstruct { args, output } => cli::reconstruct(&args, output)?,
         Command::Resect {
             camera,
             obs,
@@ -872,6 +815,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             near,
             far,
             tolerance,
+            verbose,
         } => {
             let mut params = measure::MeasureParams::default();
             if dark {
@@ -898,14 +842,31 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 anyhow::bail!("{}", measured.failed.join("\n"));
             }
             io::observations::write_observations(&out, &measured.observations)?;
-            for line in &measured.unidentified {
+            for line in &measured.summaries {
                 println!("{line}");
             }
+            if verbose {
+                for line in &measured.unidentified {
+                    println!("not identified: {line}");
+                }
+            }
             println!(
-                "{} observations in {} images ({} dots not identified) -> {}",
+                "{} observations in {} images{} -> {}",
                 measured.observations.len(),
                 images.len() - measured.failed.len(),
-                measured.unidentified.len(),
+                if identifier.is_some() {
+                    format!(
+                        " ({} dots not identified{})",
+                        measured.unidentified.len(),
+                        if verbose {
+                            ""
+                        } else {
+                            "; --verbose lists them"
+                        }
+                    )
+                } else {
+                    String::new()
+                },
                 out.display()
             );
             for line in &measured.failed {
@@ -922,27 +883,21 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Calibrate {
             what:
                 CalibrateWhat::Projector {
-                    camera,
-                    control,
+                    args,
                     obs,
                     folder,
                     pattern,
                     marker,
                     col_dir,
                     row_dir,
-                    out,
-                    model,
-                    image_sigma_px,
-                    plots,
                     output,
-                    strict,
                 },
         } => {
-            let leftover = ObservationsGuard::new(&out);
-            let obs = match (obs, folder.with_control(&control)) {
+            let leftover = ObservationsGuard::new(&args.out);
+            let obs = match (obs, folder.with_control(&args.control)) {
                 (Some(obs), _) => obs,
                 (None, Some(folder)) => {
-                    let cam = io::camera_file::read_camera(&camera)?;
+                    let cam = io::camera_file::read_camera(&args.camera)?;
                     let dots = measure::identify_images::DotGrid {
                         pattern: simulate::load_scenario(&pattern)?.rig.pattern,
                         marker: (marker[0], marker[1]),
@@ -954,24 +909,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                         &cam.grid(),
                         &cam.inner(),
                         Some(&dots),
-                        &out,
+                        &args.out,
+                        output,
                     )?
                 }
                 (None, None) => anyhow::bail!("give --obs FILE or --images DIR"),
             };
-            cli::calibrate_projector(
-                &cli::ProjectorArgs {
-                    camera,
-                    control,
-                    obs,
-                    out,
-                    model,
-                    image_sigma_px,
-                    plots,
-                    strict,
-                },
-                output,
-            )?;
+            cli::calibrate_projector(&args, &obs, output)?;
             leftover.keep();
         }
         Command::Calibrate {
@@ -1006,11 +950,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             for (k, on) in [(4, k2), (5, k3), (6, p1), (7, p2)] {
                 options.free.inner[k] |= on;
             }
+            let residuals_path = deltaz_host::residuals::residuals_path(&out);
             if let (Some(board), Some(dir)) = (board, folder.images.as_deref()) {
                 let mut params = measure::MeasureParams::default();
                 if !bright {
                     params.detect.polarity = measure::detect::Polarity::Dark;
                 }
+                let progress =
+                    output.progress(format!("calibrating the camera from {}", dir.display()));
                 let cal = deltaz_host::board_calibration::calibrate_board(
                     dir,
                     &board,
@@ -1019,21 +966,36 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     board_sigma,
                     &options,
                 )?;
+                progress.finish_and_clear();
                 for line in &cal.failed {
-                    eprintln!("left out: {line}");
+                    output.status(format!("left out: {line}"));
                 }
-                let side = |ext: &str| out.with_extension(ext);
-                io::observations::write_observations(&side("obs.csv"), &cal.observations)?;
-                io::control::write_control(&side("control.csv"), &cal.control)?;
-                io::camera_file::write_camera(&out, &cal.file)?;
-                println!(
+                let [width, height] = cal.file.image_size;
+                let (obs_path, control_path) = (
+                    out.with_extension("obs.csv"),
+                    out.with_extension("control.csv"),
+                );
+                let obs_csv = io::observations::observations_csv(&cal.observations);
+                let control_csv = io::control::control_csv(&cal.control);
+                let json = serde_json::to_string_pretty(&cal.file)? + "\n";
+                let residuals_csv = deltaz_host::residuals::residuals_csv(&cal.residuals);
+                plots.write_with(
+                    &[
+                        (&obs_path, obs_csv.as_bytes()),
+                        (&control_path, control_csv.as_bytes()),
+                        (&out, json.as_bytes()),
+                        (&residuals_path, residuals_csv.as_bytes()),
+                    ],
+                    || residual_plots(&cal.residuals, width, height),
+                    output,
+                )?;
+                output.status(format!(
                     "start from the homographies: f = {:.1} px; adjusted: f = {:.2} ± {:.2} px",
                     cal.start_f_px,
                     cal.file.inner.f / pixel_size,
                     cal.file.sigma.f / pixel_size
-                );
-                print!("{}", cli::camera_summary(&cal.file, &options.free.inner));
-                return Ok(());
+                ));
+                return camera_result(&cal.file, &cal.residuals, &options, &out, output);
             }
             let init = init.expect("clap requires --init without --board");
             let folder = control.as_deref().and_then(|c| folder.with_control(c));
@@ -1048,74 +1010,30 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                         &start.inner(),
                         None,
                         &out,
+                        output,
                     )?
                 }
                 _ => anyhow::bail!("give --obs FILE, or --images DIR with --control FILE"),
             };
             let progress =
                 output.progress(format!("calibrating the camera from {}", obs.display()));
-            let (file, residuals) =
+            let (file, residuals, plots_made) =
                 deltaz_host::camera_calibration::calibrate_files_with_residuals(
                     &init,
                     &obs,
                     control.as_deref(),
                     &out,
                     &options,
+                    plots.plots.as_deref(),
                 )?;
             progress.finish_and_clear();
-            let pixel_size = file.pixel_size;
-            output.status(format!(
-                "{}camera calibration -> {}, residuals -> {}",
-                deltaz_host::residuals::summary(
-                    &residuals,
-                    file.sigma0.unwrap_or(f64::NAN) / pixel_size,
-                    image_sigma_px
-                ),
-                out.display(),
-                deltaz_host::residuals::residuals_path(&out).display()
-            ));
-            if let Some(dir) = &plots {
-                let [width, height] = file.image_size;
-                let (histogram, _) = deltaz_host::plots::residual_histogram(&residuals)?;
-                let written = deltaz_host::plots::write_plots(
-                    dir,
-                    &[
-                        (
-                            "residual_vectors.svg",
-                            deltaz_host::plots::residual_vectors(&residuals, width, height)?,
-                        ),
-                        ("residual_histogram.svg", histogram),
-                    ],
-                )?;
-                output.status(format!("{} plots -> {}", written.len(), dir.display()));
-            }
-            let mut json = serde_json::to_value(&file)?;
-            json["out"] = serde_json::json!(out);
-            output.result(&cli::camera_summary(&file, &options.free.inner), &json)?;
+            plots.report(&plots_made, output);
+            camera_result(&file, &residuals, &options, &out, output)?;
             leftover.keep();
         }
         Command::Calibrate {
-            what:
-                CalibrateWhat::System {
-                    init,
-                    camera_obs,
-                    camera_control,
-                    control,
-                    obs,
-                    out,
-                    noncentral,
-                    strict,
-                },
-        } => cli::calibrate_system(&cli::SystemArgs {
-            init,
-            camera_obs,
-            camera_control,
-            control,
-            obs,
-            out,
-            noncentral,
-            strict,
-        })?,
+            what: CalibrateWhat::System { args, output },
+        } => cli::calibrate_system(&args, output)?,
         Command::Device { link, what } => match what {
             DeviceWhat::Ports => device_cli::ports()?,
             DeviceWhat::Info => device_cli::info(&link.args())?,

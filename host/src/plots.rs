@@ -1,6 +1,7 @@
 //! Plots of a calibration (SVG, drawn with plotters): the residual vectors of every image, the
 //! residual histogram against the expected normal distribution, and the projector rays' miss
-//! distances, and accuracy maps of reconstructed plates and test objects. Every plot has axes with units, a title with its figures and a legend.
+//! distances, and accuracy maps of reconstructed plates and test objects. Every plot has axes
+//! with units, a title with its figures and a legend.
 
 use crate::residuals::{per_image_rms, Residual};
 use anyhow::{anyhow, Result};
@@ -12,6 +13,27 @@ const FONT: (&str, u32) = ("sans-serif", 13);
 
 fn plot_error<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing a plot: {e:?}")
+}
+
+/// The legend sample of a line series: a 16 px stroke in `style`.
+fn line_legend(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], style)
+}
+
+/// Draws a chart's legend (its series' labels) in a white box with a black border, labels in
+/// `font_size` px.
+fn draw_legend<'a, DB, CT>(chart: &mut ChartContext<'a, DB, CT>, font_size: u32) -> Result<()>
+where
+    DB: DrawingBackend + 'a,
+    CT: plotters::coord::CoordTranslate,
+{
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", font_size))
+        .draw()
+        .map_err(plot_error)
 }
 
 /// A length in the plot for residuals: the largest residual is drawn as `fraction` of
@@ -121,7 +143,7 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                 }))
                 .map_err(plot_error)?
                 .label(format!("residual × {scale}"))
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED));
+                .legend(line_legend(RED.into()));
             chart
                 .draw_series(
                     own.map(|r| Circle::new((r.observed[0], r.observed[1]), 1, BLACK.filled())),
@@ -141,14 +163,8 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                 )))
                 .map_err(plot_error)?
                 .label("1 px")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 10))
-                .draw()
-                .map_err(plot_error)?;
+                .legend(line_legend(BLUE.stroke_width(2)));
+            draw_legend(&mut chart, 10)?;
         }
         root.present().map_err(plot_error)?;
     }
@@ -325,13 +341,8 @@ pub fn residual_histogram(residuals: &[Residual]) -> Result<(String, Vec<usize>)
             ))
             .map_err(plot_error)?
             .label("expected: normal, σ = RMS")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(plot_error)?;
+            .legend(line_legend(BLUE.stroke_width(2)));
+        draw_legend(&mut chart, 12)?;
         root.present().map_err(plot_error)?;
     }
     Ok((svg, counts))
@@ -381,30 +392,53 @@ pub fn ray_misses(rays: &[(u16, f64, f64)]) -> Result<String> {
             .map_err(plot_error)?
             .label("RMS")
             .legend(|(x, y)| Circle::new((x + 8, y), 3, RED.filled()));
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(plot_error)?;
+        draw_legend(&mut chart, 12)?;
         root.present().map_err(plot_error)?;
     }
     Ok(svg)
 }
 
 /// Writes plots into `dir` (created if missing), all or nothing; their paths.
-pub fn write_plots(
+pub fn write_plots<N: AsRef<str>>(
     dir: &std::path::Path,
-    plots: &[(&str, String)],
+    plots: &[(N, String)],
 ) -> Result<Vec<std::path::PathBuf>> {
+    write_with_plots(&[], Some(dir), plots)
+}
+
+/// Writes `files` and, with `dir`, the plots into it (created if missing), all or nothing: when
+/// any write fails, no file is created or changed and a directory created here is removed.
+/// Returns the plots' paths.
+pub fn write_with_plots<N: AsRef<str>>(
+    files: &[(&std::path::Path, &[u8])],
+    dir: Option<&std::path::Path>,
+    plots: &[(N, String)],
+) -> Result<Vec<std::path::PathBuf>> {
+    let Some(dir) = dir else {
+        crate::io::atomic::write_all_atomic(files)?;
+        return Ok(Vec::new());
+    };
+    let created = !dir.exists();
     std::fs::create_dir_all(dir).map_err(|e| anyhow!("{}: cannot create: {e}", dir.display()))?;
-    let paths: Vec<std::path::PathBuf> = plots.iter().map(|(name, _)| dir.join(name)).collect();
-    let files: Vec<(&std::path::Path, &[u8])> = paths
+    let paths: Vec<std::path::PathBuf> = plots
         .iter()
-        .zip(plots)
-        .map(|(p, (_, svg))| (p.as_path(), svg.as_bytes()))
+        .map(|(name, _)| dir.join(name.as_ref()))
         .collect();
-    crate::io::atomic::write_all_atomic(&files)?;
+    let all: Vec<(&std::path::Path, &[u8])> = files
+        .iter()
+        .copied()
+        .chain(
+            paths
+                .iter()
+                .zip(plots)
+                .map(|(p, (_, svg))| (p.as_path(), svg.as_bytes())),
+        )
+        .collect();
+    crate::io::atomic::write_all_atomic(&all).inspect_err(|_| {
+        if created {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    })?;
     Ok(paths)
 }
 

@@ -61,6 +61,10 @@ impl Pending {
         let name = target
             .file_name()
             .with_context(|| format!("{}: not a file name", target.display()))?;
+        // Refused now, not at the rename, when another output may already be in place.
+        if target.is_dir() {
+            bail!("{}: cannot write: it is a directory", target.display());
+        }
         let tmp = dir.join(format!(
             ".{}.{tag}.tmp{}",
             name.to_string_lossy(),

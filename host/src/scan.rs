@@ -405,17 +405,31 @@ pub struct ScanArgs {
 }
 
 /// `deltaz scan`: one PLY per frame (`OUT/<label>.ply`) or one with a `frame` property
-/// (`OUT/scan.ply`), the CSV and the single PLY written when every frame succeeded, a progress
-/// bar with frames/s on stderr.
+/// (`OUT/scan.ply`), and the CSV, a progress bar with frames/s on stderr. Every file is staged
+/// and renamed into place when every frame succeeded: a failed scan leaves no file behind (nor
+/// the folder OUT when it created it).
 pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
-    use crate::io::atomic::write_atomic;
-    use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
-    use std::io::Write;
     let (file, rig) = crate::system::SystemFile::load(&args.system)?;
     let fingerprint = file.fingerprint_u64()?;
-    let cell = if rig.grid().width > 2000 { 32.0 } else { 16.0 };
+    if matches!(args.on, ScanOn::Device { .. }) {
+        crate::device_cli::check_capacity(&args.system, &file)?;
+    }
+    let created = !args.out.exists();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let result = scan_into(args, &rig, fingerprint);
+    if result.is_err() && created {
+        let _ = std::fs::remove_dir_all(&args.out);
+    }
+    result
+}
+
+/// [`scan_command`] into its existing output folder.
+fn scan_into(args: &ScanArgs, rig: &SystemRig, fingerprint: u64) -> Result<ScanStats> {
+    use crate::io::atomic::Staged;
+    use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
+    use std::io::Write;
+    let cell = if rig.grid().width > 2000 { 32.0 } else { 16.0 };
     let mut csv = match &args.csv {
         Some(path) => {
             let (pending, mut writer) = crate::reconstruct_stream::Pending::new(path, "csv")?;
@@ -439,6 +453,7 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
         frames: None,
     };
     let (mut all, mut all_frames) = (Vec::new(), Vec::new());
+    let mut staged = Staged::default();
     let sink = |f: &FramePoints| -> Result<()> {
         let points = &f.found.points;
         if args.one_file {
@@ -446,7 +461,7 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
             all_frames.extend(std::iter::repeat_n(f.frame as u32, points.len()));
         } else {
             let bytes = encode_with(points, Encoding::BinaryLittleEndian, &info);
-            write_atomic(&args.out.join(format!("{}.ply", f.label)), &bytes)?;
+            staged.add(&args.out.join(format!("{}.ply", f.label)), &bytes)?;
         }
         if let Some((pending, writer)) = &mut csv {
             for (p, saturated) in points.iter().zip(&f.found.saturated) {
@@ -473,10 +488,10 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
     let params = MeasureParams::default();
     let stats = match &args.on {
         ScanOn::Host => {
-            let identifier = host_identifier(&rig, args.depth, args.tolerance, cell)
+            let identifier = host_identifier(rig, args.depth, args.tolerance, cell)
                 .with_context(|| args.system.display().to_string())?;
-            let identify = on_host(&rig, &identifier, args.method);
-            scan_files(&rig, &params, &args.frames, identify, sink)?
+            let identify = on_host(rig, &identifier, args.method);
+            scan_files(rig, &params, &args.frames, identify, sink)?
         }
         ScanOn::Device { link, upload } => {
             let mut device = crate::device_cli::connect(link)?;
@@ -484,16 +499,16 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
             crate::device_cli::ensure_calibration(
                 &mut device,
                 link,
-                &args.system,
+                (&args.system, rig, fingerprint),
                 args.method,
                 Some(identification),
                 *upload,
             )?;
             scan_files(
-                &rig,
+                rig,
                 &params,
                 &args.frames,
-                on_device(&rig, &mut device),
+                on_device(rig, &mut device),
                 sink,
             )?
         }
@@ -505,11 +520,12 @@ pub fn scan_command(args: &ScanArgs) -> Result<ScanStats> {
             ..info
         };
         let bytes = encode_with(&all, Encoding::BinaryLittleEndian, &info);
-        write_atomic(&args.out.join("scan.ply"), &bytes)?;
+        staged.add(&args.out.join("scan.ply"), &bytes)?;
     }
     if let Some((pending, writer)) = csv {
         pending.commit(writer)?;
     }
+    staged.commit()?;
     Ok(stats)
 }
 

@@ -14,27 +14,52 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// of them are complete are they renamed over their targets. A failure (a missing directory, a
 /// full disk) leaves none of the targets created or changed.
 pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
-    let mut temporaries = Vec::with_capacity(files.len());
+    let mut staged = Staged::default();
     for (path, bytes) in files {
-        match write_temporary(path, bytes) {
-            Ok(tmp) => temporaries.push(tmp),
-            Err(e) => {
-                for tmp in &temporaries {
-                    let _ = std::fs::remove_file(tmp);
-                }
+        staged.add(path, bytes)?;
+    }
+    staged.commit()
+}
+
+/// Files written one by one as complete temporaries beside their targets, renamed over the
+/// targets together by [`Staged::commit`]; dropped uncommitted (a failure on the way), the
+/// temporaries are removed and no target is created or changed.
+#[derive(Debug, Default)]
+pub struct Staged {
+    /// (temporary, target).
+    files: Vec<(std::path::PathBuf, std::path::PathBuf)>,
+}
+
+impl Staged {
+    /// Writes `bytes` to a temporary file for `path`.
+    pub fn add(&mut self, path: &Path, bytes: &[u8]) -> Result<()> {
+        let tmp = write_temporary(path, bytes)?;
+        self.files.push((tmp, path.to_path_buf()));
+        Ok(())
+    }
+
+    /// Renames every temporary over its target.
+    pub fn commit(mut self) -> Result<()> {
+        for index in 0..self.files.len() {
+            let (tmp, path) = &self.files[index];
+            if let Err(e) = std::fs::rename(tmp, path) {
+                let e = FileError::whole(path, format!("cannot write: {e}"));
+                // The ones before are in place; this one's and the later temporaries go.
+                self.files.drain(..index);
                 return Err(e);
             }
         }
+        self.files.clear();
+        Ok(())
     }
-    for (index, ((path, _), tmp)) in files.iter().zip(&temporaries).enumerate() {
-        if let Err(e) = std::fs::rename(tmp, path) {
-            for tmp in &temporaries[index..] {
-                let _ = std::fs::remove_file(tmp);
-            }
-            return Err(FileError::whole(path, format!("cannot write: {e}")));
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.files {
+            let _ = std::fs::remove_file(tmp);
         }
     }
-    Ok(())
 }
 
 /// `bytes` in a complete, synced temporary file beside `path`; its name.

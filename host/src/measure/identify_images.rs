@@ -331,14 +331,16 @@ pub fn observations_path(out: &Path) -> PathBuf {
     out.with_extension("obs.csv")
 }
 
-/// Measure and identify a folder's images, print a line per image, and write the observations
-/// (atomically) next to `out`; returns that file's path.
+/// Measure and identify a folder's images (each of the sensor's size in `grid`), say a line per
+/// image on stderr, and write the observations (atomically) next to `out`; returns that file's
+/// path.
 pub fn folder_observations(
     args: &FolderArgs,
     grid: &PixelGrid<f64>,
     inner: &InnerOrientation<f64>,
     dots: Option<&DotGrid>,
     out: &Path,
+    output: crate::cli::Output,
 ) -> Result<PathBuf> {
     let control = crate::io::control::read_control(&args.control)?;
     let points: Vec<_> = control.iter().map(|c| (c.point.clone(), c.xyz)).collect();
@@ -348,9 +350,15 @@ pub fn folder_observations(
     }
     .map_err(|e| anyhow::anyhow!("{}: {e}", args.control.display()))?;
     let paths = image_files(&args.dir, &args.prefix)?;
+    // An image of another size (resized, cropped) is refused as such, before its targets are
+    // matched against a layout projected for the sensor.
+    let params = MeasureParams {
+        sensor: Some((grid.width, grid.height)),
+        ..MeasureParams::default()
+    };
     let found = identify_images(
         &paths,
-        &MeasureParams::default(),
+        &params,
         &layout,
         grid,
         inner,
@@ -358,25 +366,25 @@ pub fn folder_observations(
         dots,
     )?;
     for r in &found.reports {
-        println!("{r}");
+        output.status(r);
     }
     let mut found = found;
     if dots.is_some() {
         let dropped = drop_single_plane_rays(&mut found.observations);
         if !dropped.is_empty() {
-            println!(
+            output.status(format!(
                 "left out, labelled on one plate only (the projector calibration needs two): rays {dropped:?}"
-            );
+            ));
         }
     }
     let path = observations_path(out);
     crate::io::observations::write_observations(&path, &found.observations)?;
-    println!(
+    output.status(format!(
         "{} observations in {} images -> {}",
         found.observations.len(),
         paths.len(),
         path.display()
-    );
+    ));
     Ok(path)
 }
 

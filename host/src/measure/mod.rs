@@ -69,7 +69,7 @@ pub struct MeasureParams {
     /// A circle-grid board to find in every image: its circles are named by grid position
     /// (`rIcJ`, see [`board`]) and the other targets left out.
     pub board: Option<board::Board>,
-    /// The calibration's sensor (width, height in pixels), when measuring for a calibrated
+    /// The camera's sensor (width, height in pixels), when measuring for a calibrated
     /// system: an image of another size is an error.
     pub sensor: Option<(u32, u32)>,
 }
@@ -626,7 +626,8 @@ fn measure_loaded_file(
     };
     if let Some(sensor) = params.sensor.filter(|&s| s != size) {
         bail!(
-            "{}: the image is {} × {} pixels, the calibration's sensor {} × {}",
+            "{}: the image size differs from the expected one: {} × {} pixels, the camera's \
+             sensor {} × {} (a resized or cropped image?)",
             path.display(),
             size.0,
             size.1,
@@ -691,6 +692,9 @@ pub struct MeasuredImages {
     pub observations: Vec<Observation>,
     /// "image mK (col, row): why" for each ambiguous, conflicting or unassigned dot.
     pub unidentified: Vec<String>,
+    /// One line per measured image: what was found in it (with identification: how many dots
+    /// were identified, and why the others were not).
+    pub summaries: Vec<String>,
     /// One error per image without targets or board (the others are measured all the same).
     pub failed: Vec<String>,
 }
@@ -724,9 +728,16 @@ pub fn measure_images(
                 continue;
             }
         };
+        let targets = measured.targets.len();
         if let Some(board) = params.board {
             match board_observations(path, &label, &board, &measured) {
-                Ok(found) => out.observations.extend(found),
+                Ok(found) => {
+                    out.summaries.push(format!(
+                        "{label}: {targets} targets, {} circles of the board",
+                        found.len()
+                    ));
+                    out.observations.extend(found);
+                }
                 Err(e) => out.failed.push(format!("{e:#}")),
             }
             continue;
@@ -737,11 +748,14 @@ pub fn measure_images(
                 out.observations
                     .push(Observation::target(&label, &name, t.col, t.row));
             }
+            out.summaries.push(format!("{label}: {targets} targets"));
             continue;
         };
         let dots: Vec<(f64, f64)> = measured.targets.iter().map(|t| (t.col, t.row)).collect();
         let mut assigned = vec![Assignment::Unassigned; dots.len()];
         identifier.identify_frame(&dots, &mut assigned);
+        out.summaries
+            .push(format!("{label}: {}", identification_summary(&assigned)));
         for (k, (&(col, row), a)) in dots.iter().zip(&assigned).enumerate() {
             let why = match a {
                 Assignment::Ray { id, .. } => {
@@ -761,6 +775,23 @@ pub fn measure_images(
         }
     }
     Ok(out)
+}
+
+/// What identification made of an image's dots, every dot counted once: "440 dots: 352
+/// identified, 88 not (50 ambiguous, 3 conflicts, 35 with no epipolar segment within
+/// tolerance)".
+pub fn identification_summary<T>(assigned: &[Assignment<T>]) -> String {
+    let count = |f: fn(&Assignment<T>) -> bool| assigned.iter().filter(|a| f(a)).count();
+    let identified = count(|a| matches!(a, Assignment::Ray { .. }));
+    let ambiguous = count(|a| matches!(a, Assignment::Ambiguous { .. }));
+    let conflicts = count(|a| matches!(a, Assignment::Conflict { .. }));
+    let unassigned = count(|a| matches!(a, Assignment::Unassigned));
+    format!(
+        "{} dots: {identified} identified, {} not ({ambiguous} ambiguous, {conflicts} conflicts, \
+         {unassigned} with no epipolar segment within tolerance)",
+        assigned.len(),
+        ambiguous + conflicts + unassigned
+    )
 }
 
 /// The circles of a board among an image's targets, as observations named `rIcJ`.

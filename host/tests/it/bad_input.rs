@@ -150,6 +150,21 @@ fn float_tiff() -> Vec<u8> {
     bytes.into_inner()
 }
 
+/// A rendered image of the fixture, as its PNG bytes.
+fn image_bytes(name: &str) -> Vec<u8> {
+    fixture();
+    std::fs::read(images_parent().join("images").join(name)).unwrap()
+}
+
+/// A rendered image of the fixture resized from 768 × 512 to 576 × 384 pixels (PNG).
+fn resized(name: &str) -> Vec<u8> {
+    let image = image::load_from_memory(&image_bytes(name)).unwrap();
+    let small = image.resize_exact(576, 384, image::imageops::FilterType::Triangle);
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    small.write_to(&mut bytes, image::ImageFormat::Png).unwrap();
+    bytes.into_inner()
+}
+
 const SCENARIO: &str = include_str!("../../scenarios/desk_rig.toml");
 
 fn cases() -> Vec<Case> {
@@ -161,6 +176,10 @@ fn cases() -> Vec<Case> {
                   --control sim/plate_control.csv --out poses.json";
     let reconstruct = "reconstruct --system system.json --obs dots.csv --out cloud.ply";
     let compare = "compare --reconstructed a.csv --reference sim/plate_control.csv";
+    let system = "calibrate system --init camera.json --camera-obs sim/camera_obs.csv \
+                  --camera-control sim/camera_control.csv --control sim/plate_control.csv \
+                  --obs sim/plate_obs.csv --out all.json";
+    let scan = "scan frames --system system.json --near 1600 --far 1900 --out clouds";
     let points = "point,X,Y,Z\nC01,0,-40,0\nC02,190,-40,0\nC03,375,-40,0\nC07,190,240,200\n";
     vec![
         // simulate
@@ -196,6 +215,9 @@ fn cases() -> Vec<Case> {
         case(&format!("{reconstruct} --sigma-px NaN"), &["--sigma-px", "NaN is not a positive finite number"]),
         case(&format!("{reconstruct} --sigma-px 0"), &["--sigma-px", "0 is not a positive finite number"]),
         case(&format!("{reconstruct} --csv nodir/c.csv"), &["nodir/c.csv", "cannot write"]),
+        // The cloud's target is a folder: the CSV is not written either.
+        case("reconstruct --system system.json --obs dots.csv --out adir --csv c.csv", &["adir: cannot write: it is a directory"])
+            .with("adir/keep", ""),
         // resect
         case(resect, &["camera.json", "`image_size` 4294967295 x 512 px exceeds the limit"])
             .with("camera.json", edited("camera.json", "768,", "4294967295,")),
@@ -221,6 +243,12 @@ fn cases() -> Vec<Case> {
         case(calibrate_camera, &["camera_control.csv:2: `sigma` is negative"])
             .with("sim/camera_control.csv", edited("sim/camera_control.csv", ",0.1\n", ",-0.1\n")),
         case("calibrate camera --init camera.json --images nodir --control sim/camera_control.csv --out cam.json", &["nodir"]),
+        // A plots folder that cannot be made: neither the camera nor its residuals are written.
+        case(&format!("{calibrate_camera} --plots taken"), &["taken: cannot create"]).with("taken", ""),
+        // A resized image is refused as one, not as a layout that does not match.
+        case("calibrate camera --init camera.json --images small --control sim/camera_control.csv --out cam.json",
+            &["small/s1.png: the image size differs from the expected one: 576 × 384 pixels, the camera's sensor 768 × 512"])
+            .with("small/s1.png", resized("s1.png")),
         // calibrate projector
         case(&format!("{projector} --image-sigma-px 0"), &["--image-sigma-px", "0 is not a positive"]),
         case(&format!("{projector} --image-sigma-px NaN"), &["--image-sigma-px", "NaN is not a positive"]),
@@ -232,6 +260,19 @@ fn cases() -> Vec<Case> {
             &["--marker", "\"10\" is not two comma-separated numbers"]),
         case("calibrate projector --camera camera.json --control sim/plate_control.csv --obs none.csv --out sys.json",
             &["none.csv", "No such file"]),
+        case(&format!("{projector} --plots taken"), &["taken: cannot create"]).with("taken", ""),
+        case("calibrate projector --camera camera.json --control sim/plate_control.csv --images small --out sys.json",
+            &["small/p1.png: the image size differs from the expected one: 576 × 384 pixels"])
+            .with("small/p1.png", resized("p1.png")),
+        // calibrate system
+        case(&format!("{system} --plots taken"), &["taken: cannot create"]).with("taken", ""),
+        // scan: the 1st frame's cloud is not left behind when the 2nd fails.
+        case(&format!("{scan} --host"), &["frame f2: the image is 576 × 384 pixels"])
+            .with("frames/f1.png", image_bytes("p1.png"))
+            .with("frames/f2.png", resized("p2.png")),
+        case(scan, &["frame f2: the image is 576 × 384 pixels"])
+            .with("frames/f1.png", image_bytes("p1.png"))
+            .with("frames/f2.png", resized("p2.png")),
         // The observations measured from images are written before the calibration fails
         // (here on its output, a directory): they must not stay behind.
         case(
@@ -261,6 +302,8 @@ fn cases() -> Vec<Case> {
         case("device upload system.json --near 500 --far 1500 --identify-cell 0", &["--identify-cell", "0 is not a positive"]),
         case("device stream --system system.json --simulate 4000000000 --out s.ply", &["--simulate", "4000000000"]),
         case("device stream --system system.json --obs none.csv --out s.ply", &["none.csv", "No such file"]),
+        // The stream went through, but its CSV cannot be written: the PLY is not left alone.
+        case("device stream --system system.json --simulate 2 --out s.ply --csv nodir/s.csv", &["nodir/s.csv", "cannot write"]),
         case("device --qemu=none.elf info", &["none.elf"]),
         // export
         case("export opencv --camera none.json --out c.yml", &["none.json", "No such file"]),

@@ -106,7 +106,7 @@ fn stream_matches_reconstruct() {
         &p("device.ply"),
     ]);
     assert!(
-        stream.contains("points/s") && stream.contains("0 without a point"),
+        stream.contains("dots/s") && stream.contains(", 0 without a point ("),
         "{stream}"
     );
     // --json: one object on stdout with the stream's counts and the device's statistics.
@@ -182,13 +182,69 @@ fn stream_matches_reconstruct() {
         &p("identified.csv"),
     );
     assert!(
-        identified.contains("0 dots not identified") && identified.contains("440 points"),
+        identified.contains("440 dots: 440 points") && identified.contains(" 0 not identified"),
         "{identified}"
     );
     stream(&[], &p("labelled.csv"));
     assert_eq!(
         points(&dir.path().join("identified.csv")),
         points(&dir.path().join("labelled.csv"))
+    );
+    // A depth range wider than the plate's: some dots are ambiguous. Every dot sent is counted
+    // once (points, not identified, without a point, each by reason), and the CSV and the PLY
+    // hold the points.
+    let counts = |extra: &[&str], csv: &str| {
+        let mut args = vec!["device", "stream", "--system", &system, "--simulate", "3"];
+        args.extend(["--json", "--csv", csv]);
+        args.extend(extra);
+        let out = deltaz(&args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).expect("one JSON object")
+    };
+    let n = |v: &serde_json::Value| v.as_u64().unwrap();
+    let labelled = counts(&[], &p("labelled3.csv"));
+    let wide = counts(
+        &[
+            "--identify",
+            "--near",
+            "1600",
+            "--far",
+            "1900",
+            "--out",
+            &p("wide.ply"),
+        ],
+        &p("wide.csv"),
+    );
+    assert_eq!(wide["dots"], labelled["dots"], "{wide}");
+    assert_eq!(n(&labelled["points"]), n(&labelled["dots"]), "{labelled}");
+    let reasons = wide["reasons"].as_object().unwrap();
+    let [unidentified, without] = [
+        ["unassigned", "ambiguous", "conflict"].as_slice(),
+        &["unknown_ray", "degenerate", "out_of_range", "off_sensor"],
+    ]
+    .map(|keys| keys.iter().map(|k| n(&reasons[*k])).sum::<u64>());
+    assert_eq!(unidentified, n(&wide["unidentified"]), "{wide}");
+    assert_eq!(without, n(&wide["without_point"]), "{wide}");
+    assert!(unidentified > 0, "{wide}");
+    assert_eq!(
+        n(&wide["points"]) + unidentified + without,
+        n(&wide["dots"]),
+        "{wide}"
+    );
+    let rows = std::fs::read_to_string(dir.path().join("wide.csv")).unwrap();
+    assert_eq!(rows.lines().count() as u64 - 1, n(&wide["points"]));
+    assert!(rows.starts_with("image,point,X,Y,Z,miss,saturated\n"));
+    let ply = std::fs::read(dir.path().join("wide.ply")).unwrap();
+    let header = String::from_utf8_lossy(&ply[..800]);
+    assert!(
+        header.contains(&format!("element vertex {}\n", n(&wide["points"])))
+            && header.contains("comment calibration fingerprint: ")
+            && header.contains("property uint frame\n"),
+        "{header}"
     );
     let refused = err(&[
         "device",

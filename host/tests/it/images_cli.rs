@@ -14,13 +14,11 @@ fn deltaz(args: &[&str], dir: &Path) -> Output {
         .unwrap()
 }
 
+/// The status lines (stderr) of a successful run.
 fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
+    let status = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{status}");
+    status
 }
 
 #[test]
@@ -31,7 +29,7 @@ fn calibrations_from_image_folders() {
         &["simulate", "--scenario", "paper", "--out", ".", "--images"],
         d,
     ));
-    let camera = ok(&deltaz(
+    let run = deltaz(
         &[
             "calibrate",
             "camera",
@@ -45,10 +43,18 @@ fn calibrations_from_image_folders() {
             "camera_control.csv",
             "--out",
             "camera.json",
+            "--json",
         ],
         d,
-    ));
-    assert!(camera.contains("s9: "), "{camera}");
+    );
+    let camera = ok(&run);
+    // One status line per image on stderr; stdout holds the result alone, one JSON object.
+    assert!(
+        camera.contains("s9: ") && camera.contains("control targets identified"),
+        "{camera}"
+    );
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("one JSON object");
+    assert_eq!(json["stations"].as_array().map(Vec::len), Some(9), "{json}");
     let field = read_observations(&d.join("camera.obs.csv")).unwrap();
     assert!(field.len() >= 380, "{}", field.len());
     assert!(field.iter().all(|o| o.point.starts_with('T')));

@@ -60,6 +60,31 @@ fn json_figures_and_ply_round_trip() {
     assert_eq!(system["rays"], 440);
     let fingerprint = system["fingerprint"].as_str().unwrap().to_owned();
 
+    // The device reads the fingerprint back: one object, nothing on stderr with --quiet.
+    let upload = json(
+        d,
+        "device upload system.json --near 1600 --far 1900 --method paper",
+    );
+    assert_eq!(upload["fingerprint"], fingerprint.as_str(), "{upload}");
+    assert_eq!(upload["rays"], 440);
+    assert_eq!(upload["generation"], 1);
+    assert_eq!(upload["method"], "paper");
+    assert_eq!(upload["identification"]["far_mm"], 1900.0);
+    assert_eq!(upload["persistent"], false);
+
+    // The whole-system adjustment: its projector centre with σ, in the camera system (Table 3's
+    // centre is about 500 mm to the side of the camera, in the direction −x).
+    let all = json(
+        d,
+        "calibrate system --init camera_init.json --camera-obs camera_obs.csv \
+         --camera-control camera_control.csv --control plate_control.csv --obs plate_obs.csv \
+         --out all.json",
+    );
+    let x = all["centre_mm"][0].as_f64().unwrap();
+    let sx = all["centre_sigma_mm"][0].as_f64().unwrap();
+    assert!(x < -400.0 && sx > 0.0 && sx < 20.0, "{all}");
+    assert_eq!(all["rays"], 440);
+
     // One image: labels are ray ids, as in the CSV; compare finds the identity.
     let plate = std::fs::read_to_string(d.join("plate_obs.csv")).unwrap();
     let p1: String = plate

@@ -215,7 +215,8 @@ fn image_files_and_errors() {
     .unwrap_err()
     .to_string();
     assert!(
-        err.contains("field16.png: the image is") && err.contains("sensor"),
+        err.contains("field16.png: the image size differs from the expected one")
+            && err.contains("sensor"),
         "{err}"
     );
 

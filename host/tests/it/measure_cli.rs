@@ -134,3 +134,85 @@ fn batch_goes_on_past_an_image_without_targets() {
     assert_eq!(rows.len(), 6);
     assert!(rows.iter().all(|o| o.image == "bright"));
 }
+
+/// `measure --system`: one line per image whose counts add up (identified + not = the image's
+/// dots, the reasons = not), the identified dots being the rows written; `--verbose` adds one
+/// line per dot not identified and nothing else.
+#[test]
+fn measure_with_a_system_summarises_each_image() {
+    use deltaz_host::io::camera_file::{write_camera, CameraFile};
+    use deltaz_host::simulate::{images, simulate, true_camera, write_simulation, Scenario};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scenario = Scenario::paper();
+    write_simulation(d, &simulate(&scenario, 2)).unwrap();
+    images::write_images(&scenario, 2, &images::ImageSpec::default(), d).unwrap();
+    let (grid, inner) = true_camera(&scenario);
+    write_camera(&d.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
+    let path = |name: &str| d.join(name).to_str().unwrap().to_owned();
+    let run = |args: &[&str]| {
+        let out = deltaz(args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    };
+    run(&[
+        "calibrate",
+        "projector",
+        "--camera",
+        &path("camera.json"),
+        "--control",
+        &path("plate_control.csv"),
+        "--obs",
+        &path("plate_obs.csv"),
+        "--out",
+        &path("system.json"),
+    ]);
+    let plates = ["p1", "p2", "p3"].map(|p| path(&format!("images/{p}.png")));
+    let measure = |extra: &[&str]| {
+        let mut args = vec!["measure"];
+        args.extend(plates.iter().map(String::as_str));
+        let (system, out) = (path("system.json"), path("dots.csv"));
+        args.extend([
+            "--out", &out, "--system", &system, "--near", "1500", "--far", "2100",
+        ]);
+        args.extend(extra);
+        run(&args)
+    };
+    let text = measure(&[]);
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 4, "{text}");
+    let numbers = |line: &str| -> Vec<usize> {
+        line.split(|c: char| !c.is_ascii_digit())
+            .filter_map(|w| w.parse().ok())
+            .collect()
+    };
+    let (mut identified, mut not) = (0, 0);
+    for (line, image) in lines.iter().zip(["p1", "p2", "p3"]) {
+        // "p1: 431 dots: 341 identified, 90 not (85 ambiguous, 2 conflicts, 3 with ...)"
+        assert!(line.starts_with(&format!("{image}: ")), "{line}");
+        let n = numbers(line);
+        assert_eq!(n[2] + n[3], n[1], "{line}");
+        assert_eq!(n[4] + n[5] + n[6], n[3], "{line}");
+        identified += n[2];
+        not += n[3];
+    }
+    assert!(not > 0, "{text}");
+    let rows = read_observations(&d.join("dots.csv")).unwrap();
+    assert_eq!(rows.len(), identified);
+    assert!(
+        lines[3].starts_with(&format!(
+            "{identified} observations in 3 images ({not} dots not identified"
+        )),
+        "{text}"
+    );
+    let verbose = measure(&["--verbose"]);
+    let extra: Vec<&str> = verbose.lines().filter(|l| !lines.contains(l)).collect();
+    assert_eq!(extra.len(), not + 1, "{verbose}");
+    assert!(extra[..not]
+        .iter()
+        .all(|l| l.starts_with("not identified: p")));
+}

@@ -387,3 +387,40 @@ fn circle_grid_boards_labelled() {
     }
     println!("boards: 11 of 11 labelled in OpenCV's order; 7 of 7 cut symmetric boards labelled as whole");
 }
+
+/// `calibrate camera --board ... --plots DIR --json`: one JSON object on stdout, the residual of
+/// every labelled circle next to camera.json, and the residual plots of every view.
+#[test]
+fn board_calibration_writes_residuals_plots_and_json() {
+    use deltaz_host::io::observations::read_observations;
+    let Some(dir) = photos() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("camera.json");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args(["calibrate", "camera", "--board", "circles:7x7", "--images"])
+        .arg(dir.join("opencv_extra/circles"))
+        .arg("--out")
+        .arg(&out)
+        .arg("--plots")
+        .arg(tmp.path().join("plots"))
+        .args(["--json", "--quiet"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success() && stderr.is_empty(), "{stderr}");
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("one JSON object");
+    let views = json["stations"].as_array().unwrap().len();
+    let observations = read_observations(&out.with_extension("obs.csv")).unwrap();
+    let residuals = std::fs::read_to_string(out.with_extension("residuals.csv")).unwrap();
+    assert_eq!(residuals.lines().count() - 1, observations.len());
+    assert_eq!(observations.len(), 49 * views, "7 × 7 circles per view");
+    let vectors = std::fs::read_to_string(tmp.path().join("plots/residual_vectors.svg")).unwrap();
+    assert_eq!(vectors.matches(": RMS ").count(), views);
+    let histogram =
+        std::fs::read_to_string(tmp.path().join("plots/residual_histogram.svg")).unwrap();
+    let rejected = residuals.lines().filter(|l| l.ends_with(",1")).count();
+    assert!(histogram.contains(&format!(
+        "Residuals: {} coordinates",
+        2 * (observations.len() - rejected)
+    )));
+}

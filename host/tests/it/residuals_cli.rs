@@ -88,3 +88,66 @@ fn residuals_written_and_inconsistent_control_warned() {
         "{ours} vs {stated}"
     );
 }
+
+/// `--plots` of `calibrate projector` and `calibrate system`: residual vectors per image and
+/// their histogram (the plate images' control targets, resp. the camera's field), the rays'
+/// miss distances, and an accuracy map of every plate image with each of its dots.
+#[test]
+fn projector_and_system_plots() {
+    use deltaz_host::io::camera_file::{write_camera, CameraFile};
+    use deltaz_host::io::observations::{read_observations, PointKind};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scenario = Scenario::paper();
+    write_simulation(d, &simulate(&scenario, 6)).unwrap();
+    let (grid, inner) = deltaz_host::simulate::true_camera(&scenario);
+    write_camera(&d.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
+    let run = |args: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+            .args(args.split_whitespace())
+            .current_dir(d)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{args}: {stderr}");
+        stderr
+    };
+    let said = run(
+        "calibrate projector --camera camera.json --control plate_control.csv \
+         --obs plate_obs.csv --out system.json --plots pp",
+    );
+    assert!(said.contains("6 plots -> pp"), "{said}");
+    run(
+        "calibrate system --init camera_init.json --camera-obs camera_obs.csv \
+         --camera-control camera_control.csv --control plate_control.csv --obs plate_obs.csv \
+         --out all.json --plots sp",
+    );
+    let plate = read_observations(&d.join("plate_obs.csv")).unwrap();
+    let field = read_observations(&d.join("camera_obs.csv")).unwrap();
+    let read = |dir: &str, name: &str| std::fs::read_to_string(d.join(dir).join(name)).unwrap();
+    let targets = plate.iter().filter(|o| o.kind != PointKind::Dot).count();
+    for (dir, coordinates, image) in [("pp", 2 * targets, "p3"), ("sp", 2 * field.len(), "s9")] {
+        let vectors = read(dir, "residual_vectors.svg");
+        assert!(vectors.contains(&format!("{image}: RMS")), "{dir}");
+        let histogram = read(dir, "residual_histogram.svg");
+        assert!(
+            histogram.contains(&format!("Residuals: {coordinates} coordinates")),
+            "{dir}: {coordinates}"
+        );
+        assert!(read(dir, "ray_misses.svg").contains("(440 rays)"), "{dir}");
+        for p in ["p1", "p2", "p3"] {
+            let dots = plate
+                .iter()
+                .filter(|o| o.image == p && o.kind == PointKind::Dot)
+                .count();
+            let map = read(dir, &format!("plate_{p}.svg"));
+            assert!(
+                map.contains(&format!(
+                    "Plate image {p}, reconstructed, in its plate frame: {dots} points"
+                )),
+                "{dir} {p}: {dots}"
+            );
+            assert_eq!(map.matches(r#"r="4""#).count(), 2 * dots, "{dir} {p}");
+        }
+    }
+}
