@@ -578,7 +578,21 @@ impl Drop for ObservationsGuard {
 
 /// Runs the command; any error prints as one `error: ...` chain (never a backtrace, whatever
 /// RUST_BACKTRACE says) and exits with 1, like a bad command line.
+/// The default action for SIGPIPE, as Unix tools have: `deltaz ... | head` then ends quietly
+/// when the reader closes the pipe, where Rust's runtime (which ignores SIGPIPE) would panic in
+/// `println!` with "failed printing to stdout".
+#[cfg(unix)]
+fn default_sigpipe() {
+    // SAFETY: called first in `main`, before any other thread exists, and SIG_DFL installs no
+    // handler code: it only gives the signal back its default disposition.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() -> ExitCode {
+    #[cfg(unix)]
+    default_sigpipe();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {

@@ -369,3 +369,26 @@ fn every_command_refuses_bad_input_cleanly() {
         failures.join("\n")
     );
 }
+
+/// A reader that closes the pipe (`deltaz ... | head`) ends the command as it ends Unix tools:
+/// by SIGPIPE, with nothing on stderr, never a panic about "failed printing to stdout".
+#[cfg(unix)]
+#[test]
+fn a_closed_stdout_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args(["device", "info"])
+        .env("RUST_BACKTRACE", "1")
+        .stdout(writer)
+        .output()
+        .unwrap();
+    // SIGPIPE is signal 13 on Linux and the BSDs.
+    assert_eq!(out.status.signal(), Some(13), "{:?}", out.status);
+    assert!(
+        out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
