@@ -8,7 +8,7 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
-use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::projector::{Projector, ProjectorRay, RayCursor};
 use deltaz_shared::protocol::calibration::{
     decode_calibration_from, CalibrationHeader, IdentifyParams, WireRay,
 };
@@ -89,13 +89,16 @@ impl Active {
         )
     }
 
-    /// The result for one centroid of ray `id` at pixel (col, row); a centroid off the sensor
-    /// gets [`PointStatus::OffSensor`].
-    fn point(&self, rig: &DeviceRig, id: u16, col: f32, row: f32) -> PointResult {
-        if !rig.grid().contains(col, row) {
+    /// The result for one dot of ray `id`, the ray found from `cursor` (see
+    /// [`Rig::reconstruct_from`]); a dot off the sensor gets [`PointStatus::OffSensor`].
+    #[inline]
+    fn point(&self, rig: &DeviceRig, cursor: &mut RayCursor, id: u16, dot: Dot) -> PointResult {
+        let bits = self.summary.centroid_bits;
+        if !dot.on_sensor(self.grid.width, self.grid.height, bits) {
             return PointResult::Failed(PointStatus::OffSensor);
         }
-        match rig.reconstruct(id, col, row, self.method) {
+        let (col, row) = dot.pixel::<f32>(bits);
+        match rig.reconstruct_from(cursor, id, col, row, self.method) {
             Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
             Err(e) => PointResult::from_error(e),
         }
@@ -349,16 +352,16 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         tx: &mut dyn FnMut(&[u8]),
     ) -> Result<(), ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
-        let bits = active.summary.centroid_bits;
         let start = self.probe.now();
         let rig = active.rig(&self.rays);
         let mut out = FrameWriter::streamed(tx, seq, tag::POINTS);
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(centroids.len() as u32)))
             .map_err(ErrorCode::Frame)?;
+        // The host sends a batch sorted by id: each ray is found just after the last one.
+        let mut cursor = RayCursor::default();
         for c in centroids.iter() {
-            let (col, row) = c.pixel::<f32>(bits);
-            out.put_point(&active.point(&rig, c.id, col, row))
+            out.put_point(&active.point(&rig, &mut cursor, c.id, c.dot()))
                 .map_err(ErrorCode::Frame)?;
         }
         self.count_compute(start, centroids.len());
@@ -390,12 +393,10 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(dots.len() as u32)))
             .map_err(ErrorCode::Frame)?;
+        let mut cursor = RayCursor::default();
         for (dot, assignment) in dots.iter().zip(found.iter()) {
             let (id, result) = match *assignment {
-                Assignment::Ray { id, .. } => {
-                    let (col, row) = dot.pixel::<f32>(bits);
-                    (id, active.point(&rig, id, col, row))
-                }
+                Assignment::Ray { id, .. } => (id, active.point(&rig, &mut cursor, id, dot)),
                 Assignment::Ambiguous { first, .. } => {
                     (first, PointResult::Failed(PointStatus::Ambiguous))
                 }
