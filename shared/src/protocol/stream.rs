@@ -352,10 +352,13 @@ impl<F: Flavor> Flavor for Checksummed<F> {
 }
 
 impl<'b> FrameWriter<Cobs<Slice<'b>>> {
-    /// Start the response to request `seq` of kind `tag` (see [`tag`]) in `buf`.
+    /// Start the response to request `seq` of kind `tag` in `buf`.
     pub fn new(buf: &'b mut [u8], seq: u32, tag: u32) -> Result<Self, WireError> {
         let cobs = Cobs::try_new(Slice::new(buf)).map_err(|_| WireError::BufferFull)?;
-        Self::start(cobs, seq, tag)
+        let mut me = Self::over(cobs);
+        me.put(&seq)?;
+        me.put(&tag)?;
+        Ok(me)
     }
 }
 
@@ -363,14 +366,17 @@ impl<'o> FrameWriter<CobsSink<'o>> {
     /// Start the response to request `seq` of kind `tag`, its bytes handed to `out` block by
     /// block (a UART: no transmit buffer).
     pub fn streamed(out: &'o mut dyn FnMut(&[u8]), seq: u32, tag: u32) -> Self {
-        Self::start(CobsSink::new(out), seq, tag)
-            .unwrap_or_else(|_| unreachable!("a sink takes every byte"))
+        let mut me = Self::over(CobsSink::new(out));
+        // A sink takes every byte (its pushes cannot fail): nothing to report here.
+        let _ = me.put(&seq).and_then(|()| me.put(&tag));
+        me
     }
 }
 
 impl<F: Flavor> FrameWriter<F> {
-    fn start(cobs: F, seq: u32, tag: u32) -> Result<Self, WireError> {
-        let mut me = Self {
+    /// A frame writer over `cobs`, nothing written yet.
+    fn over(cobs: F) -> Self {
+        Self {
             out: postcard::Serializer {
                 output: Checksummed {
                     inner: cobs,
@@ -378,10 +384,7 @@ impl<F: Flavor> FrameWriter<F> {
                 },
             },
             ids: 0,
-        };
-        me.put(&seq)?;
-        me.put(&tag)?;
-        Ok(me)
+        }
     }
 
     /// Append one field.
