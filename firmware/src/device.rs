@@ -3,6 +3,7 @@
 //! bytes go straight into the store's spare flash slot as they arrive), and the calibration
 //! store.
 
+use crate::logging::event;
 use crate::store::{Pending, Store, StoreError};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
@@ -188,6 +189,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     pub(crate) fn load(&mut self) {
         self.active = None;
         let Some(stored) = self.store.newest() else {
+            event!(info, "boot: no stored calibration");
             return;
         };
         // A stored calibration was checked at its commit, identifier included: a failure here
@@ -195,10 +197,19 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         match self.activate(stored.slot, stored.len) {
             Ok(mut active) => {
                 active.summary.generation = stored.generation;
+                event!(
+                    info,
+                    "boot: calibration {:016x} generation {} loaded",
+                    active.summary.fingerprint,
+                    stored.generation
+                );
                 self.active = Some(active);
                 self.boot_error = None;
             }
-            Err(e) => self.boot_error = Some(e),
+            Err(e) => {
+                event!(warn, "boot: the stored calibration failed to load: {:?}", e);
+                self.boot_error = Some(e);
+            }
         }
     }
 
@@ -223,6 +234,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     pub fn handle(&mut self, seq: u32, request: RequestView<'_>, tx: &mut dyn FnMut(&[u8])) {
         if seq == 0 {
             // Seq 0 is the device's own for frames it could not read: a request must not use it.
+            event!(debug, "bad frame: a request with seq 0");
             self.count_bad_frame();
             return error_frame(tx, 0, ErrorCode::Frame(WireError::Malformed));
         }
@@ -245,6 +257,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
                 reply(tx, seq, tag::STATS, &self.stats)
             }
             RequestView::Reset => {
+                event!(info, "reset requested");
                 self.reset = true;
                 reply(tx, seq, tag::RESETTING, &())
             }
@@ -256,6 +269,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
 
     /// The answer to a frame that could not be read (`seq` 0 unless its CRC held): counted.
     pub fn refuse(&mut self, seq: u32, error: WireError, tx: &mut dyn FnMut(&[u8])) {
+        event!(debug, "bad frame (seq {}): {:?}", seq, error);
         self.count_bad_frame();
         error_frame(tx, seq, ErrorCode::Frame(error))
     }
@@ -285,6 +299,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             return Err(ErrorCode::TooLarge);
         }
         let pending = self.store.begin(len).map_err(storage)?;
+        event!(info, "upload: {} bytes", len);
         self.upload = Some(Upload { pending, crc });
         Ok(len as u32)
     }
@@ -334,10 +349,21 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
                 active.summary.generation = stored.generation;
                 self.boot_error = None;
                 let summary = active.summary;
+                event!(
+                    info,
+                    "upload committed: calibration {:016x} generation {}",
+                    summary.fingerprint,
+                    summary.generation
+                );
                 self.active = Some(active);
                 Ok((summary.fingerprint, summary.generation))
             }
             Err(e) => {
+                event!(
+                    warn,
+                    "upload refused: {:?}; the stored calibration reloaded",
+                    e
+                );
                 self.load();
                 Err(e)
             }
