@@ -326,6 +326,10 @@ fn main() -> ! {
         let mut syst = cp.SYST;
         syst.enable_interrupt();
         let probe = CortexProbe::start(syst);
+        // The watchdog stops while a debugger (probe-rs) holds the core halted.
+        dp.DBGMCU
+            .apb1_fz()
+            .modify(|_, w| w.dbg_iwdg_stop().set_bit());
         let dog = Watchdog::start(dp.IWDG);
         let flash = Flash {
             flash: dp.FLASH,
