@@ -4,7 +4,7 @@
 //! port) at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the
 //! calibration store in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000),
 //! SysTick at the core clock. The server (39.8 KB) is written in place into a static and the
-//! stack peaks at about 6.9 KB (measured under QEMU with the same code).
+//! stack peaks at about 7.0 KB (measured under QEMU with the same code).
 //!
 //! - **Watchdog**: the independent watchdog (IWDG, its own ~32 kHz LSI) resets the board when
 //!   it is not fed for about 5 s ([`WATCHDOG_RELOAD`]); it is fed while the board waits for a
