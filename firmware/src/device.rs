@@ -3,12 +3,13 @@
 //! bytes go straight into the store's spare flash slot as they arrive), and the calibration
 //! store.
 
+use crate::logging::event;
 use crate::store::{Pending, Store, StoreError};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
-use deltaz_shared::projector::{Projector, ProjectorRay};
+use deltaz_shared::projector::{Projector, ProjectorRay, RayCursor};
 use deltaz_shared::protocol::calibration::{
     decode_calibration_from, CalibrationHeader, IdentifyParams, WireRay,
 };
@@ -89,13 +90,16 @@ impl Active {
         )
     }
 
-    /// The result for one centroid of ray `id` at pixel (col, row); a centroid off the sensor
-    /// gets [`PointStatus::OffSensor`].
-    fn point(&self, rig: &DeviceRig, id: u16, col: f32, row: f32) -> PointResult {
-        if !rig.grid().contains(col, row) {
+    /// The result for one dot of ray `id`, the ray found from `cursor` (see
+    /// [`Rig::reconstruct_from`]); a dot off the sensor gets [`PointStatus::OffSensor`].
+    #[inline]
+    fn point(&self, rig: &DeviceRig, cursor: &mut RayCursor, id: u16, dot: Dot) -> PointResult {
+        let bits = self.summary.centroid_bits;
+        if !dot.on_sensor(self.grid.width, self.grid.height, bits) {
             return PointResult::Failed(PointStatus::OffSensor);
         }
-        match rig.reconstruct(id, col, row, self.method) {
+        let (col, row) = dot.pixel::<f32>(bits);
+        match rig.reconstruct_from(cursor, id, col, row, self.method) {
             Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
             Err(e) => PointResult::from_error(e),
         }
@@ -185,6 +189,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     pub(crate) fn load(&mut self) {
         self.active = None;
         let Some(stored) = self.store.newest() else {
+            event!(info, "boot: no stored calibration");
             return;
         };
         // A stored calibration was checked at its commit, identifier included: a failure here
@@ -192,10 +197,19 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         match self.activate(stored.slot, stored.len) {
             Ok(mut active) => {
                 active.summary.generation = stored.generation;
+                event!(
+                    info,
+                    "boot: calibration {:016x} generation {} loaded",
+                    active.summary.fingerprint,
+                    stored.generation
+                );
                 self.active = Some(active);
                 self.boot_error = None;
             }
-            Err(e) => self.boot_error = Some(e),
+            Err(e) => {
+                event!(warn, "boot: the stored calibration failed to load: {:?}", e);
+                self.boot_error = Some(e);
+            }
         }
     }
 
@@ -220,6 +234,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
     pub fn handle(&mut self, seq: u32, request: RequestView<'_>, tx: &mut dyn FnMut(&[u8])) {
         if seq == 0 {
             // Seq 0 is the device's own for frames it could not read: a request must not use it.
+            event!(debug, "bad frame: a request with seq 0");
             self.count_bad_frame();
             return error_frame(tx, 0, ErrorCode::Frame(WireError::Malformed));
         }
@@ -242,6 +257,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
                 reply(tx, seq, tag::STATS, &self.stats)
             }
             RequestView::Reset => {
+                event!(info, "reset requested");
                 self.reset = true;
                 reply(tx, seq, tag::RESETTING, &())
             }
@@ -253,6 +269,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
 
     /// The answer to a frame that could not be read (`seq` 0 unless its CRC held): counted.
     pub fn refuse(&mut self, seq: u32, error: WireError, tx: &mut dyn FnMut(&[u8])) {
+        event!(debug, "bad frame (seq {}): {:?}", seq, error);
         self.count_bad_frame();
         error_frame(tx, seq, ErrorCode::Frame(error))
     }
@@ -282,6 +299,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             return Err(ErrorCode::TooLarge);
         }
         let pending = self.store.begin(len).map_err(storage)?;
+        event!(info, "upload: {} bytes", len);
         self.upload = Some(Upload { pending, crc });
         Ok(len as u32)
     }
@@ -331,10 +349,21 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
                 active.summary.generation = stored.generation;
                 self.boot_error = None;
                 let summary = active.summary;
+                event!(
+                    info,
+                    "upload committed: calibration {:016x} generation {}",
+                    summary.fingerprint,
+                    summary.generation
+                );
                 self.active = Some(active);
                 Ok((summary.fingerprint, summary.generation))
             }
             Err(e) => {
+                event!(
+                    warn,
+                    "upload refused: {:?}; the stored calibration reloaded",
+                    e
+                );
                 self.load();
                 Err(e)
             }
@@ -349,16 +378,16 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         tx: &mut dyn FnMut(&[u8]),
     ) -> Result<(), ErrorCode> {
         let active = self.active.as_ref().ok_or(ErrorCode::NoCalibration)?;
-        let bits = active.summary.centroid_bits;
         let start = self.probe.now();
         let rig = active.rig(&self.rays);
         let mut out = FrameWriter::streamed(tx, seq, tag::POINTS);
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(centroids.len() as u32)))
             .map_err(ErrorCode::Frame)?;
+        // The host sends a batch sorted by id: each ray is found just after the last one.
+        let mut cursor = RayCursor::default();
         for c in centroids.iter() {
-            let (col, row) = c.pixel::<f32>(bits);
-            out.put_point(&active.point(&rig, c.id, col, row))
+            out.put_point(&active.point(&rig, &mut cursor, c.id, c.dot()))
                 .map_err(ErrorCode::Frame)?;
         }
         self.count_compute(start, centroids.len());
@@ -390,12 +419,10 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(dots.len() as u32)))
             .map_err(ErrorCode::Frame)?;
+        let mut cursor = RayCursor::default();
         for (dot, assignment) in dots.iter().zip(found.iter()) {
             let (id, result) = match *assignment {
-                Assignment::Ray { id, .. } => {
-                    let (col, row) = dot.pixel::<f32>(bits);
-                    (id, active.point(&rig, id, col, row))
-                }
+                Assignment::Ray { id, .. } => (id, active.point(&rig, &mut cursor, id, dot)),
                 Assignment::Ambiguous { first, .. } => {
                     (first, PointResult::Failed(PointStatus::Ambiguous))
                 }

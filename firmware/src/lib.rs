@@ -5,12 +5,14 @@
 //! - [`server`]: the framing around it over any embedded-io serial port;
 //! - [`store`]: the power-fail safe two-slot calibration store over a `NorFlash`;
 //! - [`ram_flash`]: a NOR flash in RAM with power cuts, for the host and the tests;
-//! - [`smoke`]: the boot-time smoke computation;
+//! - [`smoke`]: the boot-time smoke computation and its line;
+//! - `logging`: the device's events to the `log` facade (feature `log`), or nothing;
 //! - `probe` (board targets only): SysTick and the stack high-water mark.
 #![cfg_attr(target_os = "none", no_std)]
 #![deny(missing_docs)]
 
 pub mod device;
+mod logging;
 #[cfg(target_os = "none")]
 pub mod probe;
 pub mod ram_flash;

@@ -81,8 +81,8 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         let len = core::mem::take(&mut self.rx_len);
         if core::mem::take(&mut self.overflow) {
             self.device.refuse(0, WireError::Oversized, tx);
-        } else if len > 0 {
-            match view_request(&mut self.rx[..len]) {
+        } else if let Some(frame) = self.rx.get_mut(..len).filter(|f| !f.is_empty()) {
+            match view_request(frame) {
                 Ok((seq, request)) => self.device.handle(seq, request, tx),
                 Err((seq, error)) => self.device.refuse(seq, error, tx),
             }
@@ -95,7 +95,7 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
         loop {
             let n = io.read(&mut buf)?;
             let mut failed = Ok(());
-            for &byte in &buf[..n] {
+            for &byte in buf.iter().take(n) {
                 self.push(byte, &mut |bytes| {
                     if failed.is_ok() {
                         failed = io.write_all(bytes);

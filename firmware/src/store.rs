@@ -162,7 +162,7 @@ impl<F: NorFlash> Store<F> {
     pub fn load<'o>(&mut self, out: &'o mut [u8]) -> Option<(Stored, &'o [u8])> {
         let stored = self.newest()?;
         let blob = out.get_mut(..stored.len)?;
-        let start = self.slots[stored.slot].0 + HEADER as u32;
+        let start = self.range(stored.slot).0 + HEADER as u32;
         self.flash.read(start, blob).ok()?;
         // The slot was validated a moment ago; check again what was actually read.
         (CRC.checksum(blob) == self.header(stored.slot)?.2).then_some((stored, &*blob))
@@ -192,7 +192,7 @@ impl<F: NorFlash> Store<F> {
             Some(s) => 1 - s.slot,
             None => 0,
         };
-        let (start, end) = self.slots[slot];
+        let (start, end) = self.range(slot);
         self.flash.erase(start, end)?;
         Ok(Pending {
             slot,
@@ -211,28 +211,34 @@ impl<F: NorFlash> Store<F> {
         if pending.received() + data.len() > pending.len {
             return Err(StoreError::TooLarge);
         }
-        let base = self.slots[pending.slot].0 + HEADER as u32;
+        let base = self.range(pending.slot).0 + HEADER as u32;
         if pending.tail_len > 0 {
-            let take = (unit - pending.tail_len).min(data.len());
-            pending.tail[pending.tail_len..pending.tail_len + take].copy_from_slice(&data[..take]);
+            let room = pending
+                .tail
+                .get_mut(pending.tail_len..unit)
+                .unwrap_or_default();
+            let take = room.len().min(data.len());
+            room.iter_mut().zip(data).for_each(|(t, &b)| *t = b);
             pending.tail_len += take;
-            data = &data[take..];
+            data = data.get(take..).unwrap_or_default();
             if pending.tail_len < unit {
                 return Ok(());
             }
+            let unit_bytes = pending.tail.get(..unit).ok_or(StoreError::Layout)?;
             self.flash
-                .write(base + pending.written as u32, &pending.tail[..unit])?;
+                .write(base + pending.written as u32, unit_bytes)?;
             pending.written += unit;
             pending.tail_len = 0;
         }
-        let whole = data.len() / unit * unit;
-        if whole > 0 {
-            self.flash
-                .write(base + pending.written as u32, &data[..whole])?;
-            pending.written += whole;
+        let (whole, rest) = data
+            .split_at_checked(data.len() / unit * unit)
+            .ok_or(StoreError::Layout)?;
+        if !whole.is_empty() {
+            self.flash.write(base + pending.written as u32, whole)?;
+            pending.written += whole.len();
         }
-        let rest = &data[whole..];
-        pending.tail[..rest.len()].copy_from_slice(rest);
+        // rest.len() < unit ≤ MAX_WRITE: all of it fits the tail.
+        pending.tail.iter_mut().zip(rest).for_each(|(t, &b)| *t = b);
         pending.tail_len = rest.len();
         Ok(())
     }
@@ -242,10 +248,13 @@ impl<F: NorFlash> Store<F> {
     pub fn pending_crc(&mut self, pending: &mut Pending) -> Result<u32, StoreError> {
         if pending.tail_len > 0 {
             let unit = F::WRITE_SIZE;
-            pending.tail[pending.tail_len..].fill(0xFF);
-            let base = self.slots[pending.slot].0 + HEADER as u32;
+            if let Some(padding) = pending.tail.get_mut(pending.tail_len..) {
+                padding.fill(0xFF);
+            }
+            let base = self.range(pending.slot).0 + HEADER as u32;
+            let unit_bytes = pending.tail.get(..unit).ok_or(StoreError::Layout)?;
             self.flash
-                .write(base + pending.written as u32, &pending.tail[..unit])?;
+                .write(base + pending.written as u32, unit_bytes)?;
             pending.written += pending.tail_len;
             pending.tail_len = 0;
         }
@@ -263,7 +272,9 @@ impl<F: NorFlash> Store<F> {
         let mut piece = [0u8; 64];
         for (i, expected) in data.chunks(piece.len()).enumerate() {
             let at = offset + i * piece.len();
-            let got = &mut piece[..expected.len()];
+            let Some(got) = piece.get_mut(..expected.len()) else {
+                return false;
+            };
             for (k, b) in got.iter_mut().enumerate() {
                 if let Some(&t) = (at + k)
                     .checked_sub(pending.written)
@@ -289,7 +300,7 @@ impl<F: NorFlash> Store<F> {
         if offset + out.len() > self.capacity() {
             return Err(StoreError::TooLarge);
         }
-        let start = self.slots[slot].0 + (HEADER + offset) as u32;
+        let start = self.range(slot).0 + (HEADER + offset) as u32;
         self.flash.read(start, out)?;
         Ok(())
     }
@@ -303,15 +314,13 @@ impl<F: NorFlash> Store<F> {
         }
         let crc = self.data_crc(slot, pending.len)?;
         let mut header = [0xFFu8; HEADER];
-        for (i, v) in [MAGIC, pending.generation, pending.len as u32, crc]
-            .into_iter()
-            .enumerate()
-        {
-            header[i * 4..i * 4 + 4].copy_from_slice(&v.to_le_bytes());
+        let words = [MAGIC, pending.generation, pending.len as u32, crc];
+        for (bytes, v) in header.chunks_exact_mut(4).zip(words) {
+            bytes.copy_from_slice(&v.to_le_bytes());
         }
         let header_crc = CRC.checksum(&header[..16]);
         header[16..20].copy_from_slice(&header_crc.to_le_bytes());
-        self.flash.write(self.slots[slot].0, &header)?;
+        self.flash.write(self.range(slot).0, &header)?;
         let stored = Stored {
             slot,
             generation: pending.generation,
@@ -323,11 +332,21 @@ impl<F: NorFlash> Store<F> {
         Ok(stored)
     }
 
+    /// Slot `slot`'s `[start, end)` (slot 0, or slot 1 for any other number).
+    fn range(&self, slot: usize) -> (u32, u32) {
+        let [a, b] = self.slots;
+        if slot == 0 {
+            a
+        } else {
+            b
+        }
+    }
+
     /// The slot's header as `(generation, len, blob CRC)`, or `None` when unreadable, erased, or
     /// its CRC fails.
     fn header(&mut self, slot: usize) -> Option<(u32, usize, u32)> {
         let mut h = [0u8; HEADER];
-        self.flash.read(self.slots[slot].0, &mut h).ok()?;
+        self.flash.read(self.range(slot).0, &mut h).ok()?;
         let word = |i: usize| u32::from_le_bytes([h[i], h[i + 1], h[i + 2], h[i + 3]]);
         if word(0) != MAGIC || CRC.checksum(&h[..16]) != word(16) {
             return None;
@@ -340,13 +359,15 @@ impl<F: NorFlash> Store<F> {
     fn data_crc(&mut self, slot: usize, len: usize) -> Result<u32, StoreError> {
         let mut digest = CRC.digest();
         let mut piece = [0u8; PIECE];
-        let start = self.slots[slot].0 + HEADER as u32;
+        let start = self.range(slot).0 + HEADER as u32;
         let mut done = 0;
-        while done < len {
-            let n = (len - done).min(PIECE);
-            self.flash.read(start + done as u32, &mut piece[..n])?;
-            digest.update(&piece[..n]);
-            done += n;
+        while let Some(bytes) = piece
+            .get_mut(..(len - done).min(PIECE))
+            .filter(|b| !b.is_empty())
+        {
+            self.flash.read(start + done as u32, bytes)?;
+            digest.update(bytes);
+            done += bytes.len();
         }
         Ok(digest.finalize())
     }

@@ -308,21 +308,29 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         self.grid_cols = grid_cols;
         self.grid_rows = grid_rows;
         self.starts.fill(0);
-        self.unit = fixed_point_unit(grid.width.max(grid.height));
-        for (k, ray) in rays.iter().enumerate() {
+        let unit = fixed_point_unit(grid.width.max(grid.height));
+        self.unit = unit;
+        let slots = self.polylines.iter_mut().zip(self.ids.iter_mut());
+        for (ray, (line, id)) in rays.iter().zip(slots) {
             let segment = epipolar_segment(rig, ray, depth)
                 .map_err(|e| IdentifyError::Geometry(ray.id, e))?;
-            self.polylines[k] = segment.points.map(|p| [p.x, p.y].map(|v| self.fixed(v)));
-            self.ids[k] = ray.id;
+            *line = segment.points.map(|p| [p.x, p.y].map(|v| fixed(v, unit)));
+            *id = ray.id;
         }
         // Two passes over the cells each segment touches: count, then fill (each cell's slots
-        // from its end down, the rays in reverse: every cell lists its rays in order).
+        // from its end down, the rays in reverse: every cell lists its rays in order). Cells
+        // are below C and entries below E (checked), so the `get`s always find theirs.
         for k in 0..self.rays {
-            let segment = self.segment(k);
-            self.for_each_cell(&segment, |me, cell| me.starts[cell] += 1);
+            if let Some(segment) = self.segment(k) {
+                self.for_each_cell(&segment, |me, cell| {
+                    if let Some(start) = me.starts.get_mut(cell) {
+                        *start += 1;
+                    }
+                });
+            }
         }
         let mut total = 0usize;
-        for start in &mut self.starts[..grid_cols * grid_rows] {
+        for start in self.starts.iter_mut().take(grid_cols * grid_rows) {
             total += usize::from(*start);
             if total > E {
                 return Err(IdentifyError::TooManyEntries);
@@ -331,11 +339,16 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         }
         self.total = total as u16;
         for k in (0..self.rays).rev() {
-            let segment = self.segment(k);
-            self.for_each_cell(&segment, |me, cell| {
-                me.starts[cell] -= 1;
-                me.entries[usize::from(me.starts[cell])] = k as u16;
-            });
+            if let Some(segment) = self.segment(k) {
+                self.for_each_cell(&segment, |me, cell| {
+                    if let Some(start) = me.starts.get_mut(cell) {
+                        *start = start.wrapping_sub(1);
+                        if let Some(entry) = me.entries.get_mut(usize::from(*start)) {
+                            *entry = k as u16;
+                        }
+                    }
+                });
+            }
         }
         Ok(())
     }
@@ -407,21 +420,16 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
 
     /// The epipolar segments, in the projector's ray order (as stored: vertices in fixed point).
     pub fn segments(&self) -> impl Iterator<Item = EpipolarSegment<T>> + '_ {
-        (0..self.rays).map(|k| self.segment(k))
+        (0..self.rays).filter_map(|k| self.segment(k))
     }
 
-    /// Ray `k`'s polyline in pixels.
-    fn segment(&self, k: usize) -> EpipolarSegment<T> {
-        EpipolarSegment {
-            id: self.ids[k],
-            points: self.polylines[k].map(|[x, y]| Vector2::new(self.pixels(x), self.pixels(y))),
-        }
-    }
-
-    /// A pixel coordinate in the polylines' fixed point (rounded; clamped to the i16 range).
-    fn fixed(&self, v: T) -> i16 {
-        let steps = nalgebra::try_convert::<T, f32>(v / self.unit).unwrap_or(0.0);
-        libm::roundf(steps).clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16
+    /// Ray `k`'s polyline in pixels (`None` beyond the capacity, which `rays` never is).
+    fn segment(&self, k: usize) -> Option<EpipolarSegment<T>> {
+        let line = self.polylines.get(k)?;
+        Some(EpipolarSegment {
+            id: *self.ids.get(k)?,
+            points: line.map(|[x, y]| Vector2::new(self.pixels(x), self.pixels(y))),
+        })
     }
 
     /// A fixed-point coordinate in pixels.
@@ -436,13 +444,12 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
 
     /// The entries of grid cell `cell`.
     fn cell_entries(&self, cell: usize) -> &[u16] {
-        let start = usize::from(self.starts[cell]);
-        let end = if cell + 1 < self.grid_cols * self.grid_rows {
-            usize::from(self.starts[cell + 1])
-        } else {
-            usize::from(self.total)
+        let start = self.starts.get(cell).map_or(0, |&s| usize::from(s));
+        let end = match self.starts.get(cell + 1) {
+            Some(&next) if cell + 1 < self.grid_cols * self.grid_rows => usize::from(next),
+            _ => usize::from(self.total),
         };
-        &self.entries[start..end]
+        self.entries.get(start..end).unwrap_or_default()
     }
 
     /// The assignment of one dot at pixel (col, row), by itself (see [`Self::identify_frame`]).
@@ -457,37 +464,37 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         };
         // Squared distances (pixels²): one square root, for the ray found.
         let limit = self.tolerance * self.tolerance;
-        let mut first: Option<(T, usize)> = None;
-        let mut second: Option<(T, usize)> = None;
+        // (squared distance, ray index, ray id)
+        let mut first: Option<(T, usize, u16)> = None;
+        let mut second: Option<(T, usize, u16)> = None;
         for &k in self.cell_entries(cell) {
             let k = usize::from(k);
-            let d = self.segment(k).distance_squared(p);
+            let Some(segment) = self.segment(k) else {
+                continue;
+            };
+            let d = segment.distance_squared(p);
             if d > limit {
                 continue;
             }
             match first {
-                Some((d1, _)) if d >= d1 => {
-                    if second.is_none_or(|(d2, _)| d < d2) {
-                        second = Some((d, k));
+                Some((d1, ..)) if d >= d1 => {
+                    if second.is_none_or(|(d2, ..)| d < d2) {
+                        second = Some((d, k, segment.id));
                     }
                 }
                 _ => {
                     second = first;
-                    first = Some((d, k));
+                    first = Some((d, k, segment.id));
                 }
             }
         }
         match (first, second) {
-            (Some((_, a)), Some((_, b))) => (
-                Assignment::Ambiguous {
-                    first: self.ids[a],
-                    second: self.ids[b],
-                },
-                a,
-            ),
-            (Some((d, a)), None) => (
+            (Some((_, a, first)), Some((.., second))) => {
+                (Assignment::Ambiguous { first, second }, a)
+            }
+            (Some((d, a, id)), None) => (
                 Assignment::Ray {
-                    id: self.ids[a],
+                    id,
                     distance: sqrt(d),
                 },
                 a,
@@ -514,8 +521,8 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let mut n = 0;
         for (dot, slot) in dots.into_iter().zip(out.iter_mut()) {
             let (assignment, k) = self.nearest(Vector2::new(dot.0, dot.1));
-            if let Assignment::Ray { .. } = assignment {
-                claims[k] = claims[k].saturating_add(1);
+            if let (Assignment::Ray { .. }, Some(claim)) = (assignment, claims.get_mut(k)) {
+                *claim = claim.saturating_add(1);
             }
             *slot = assignment;
             n += 1;
@@ -523,8 +530,9 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let mut identified = 0;
         for slot in out.iter_mut().take(n) {
             if let Assignment::Ray { id, .. } = *slot {
-                let k = self.ids[..self.rays].binary_search(&id).unwrap_or(0);
-                if claims[k] > 1 {
+                let ids = self.ids.get(..self.rays).unwrap_or_default();
+                let k = ids.binary_search(&id).unwrap_or(0);
+                if claims.get(k).is_some_and(|&c| c > 1) {
                     *slot = Assignment::Conflict { id };
                 } else {
                     identified += 1;
@@ -540,9 +548,9 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
     pub fn close_pairs(&self) -> usize {
         let limit = self.tolerance + self.tolerance;
         let mut pairs = 0;
-        for a in 0..self.rays {
-            for b in a + 1..self.rays {
-                if segments_distance(&self.segment(a), &self.segment(b)) <= limit {
+        for (i, a) in self.segments().enumerate() {
+            for b in self.segments().skip(i + 1) {
+                if segments_distance(&a, &b) <= limit {
                     pairs += 1;
                 }
             }
@@ -555,6 +563,13 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
 fn cells_along<T: RealField + Copy + SupersetOf<f32>>(n: u32, cell: T) -> usize {
     let cells = (lit::<T>(f64::from(n)) / cell).ceil();
     small_index(cells).max(1)
+}
+
+/// A pixel coordinate in the polylines' fixed point of `unit` pixels (rounded; clamped to the
+/// i16 range).
+fn fixed<T: RealField + Copy + SupersetOf<f32>>(v: T, unit: T) -> i16 {
+    let steps = nalgebra::try_convert::<T, f32>(v / unit).unwrap_or(0.0);
+    libm::roundf(steps).clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16
 }
 
 /// A small non-negative whole number (a cell index or count) as an index, through f32 (exact

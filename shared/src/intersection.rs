@@ -18,15 +18,16 @@ pub struct Intersection<T: RealField> {
     pub miss: T,
 }
 
-/// The smallest sine of the angle between two directions that is not called degenerate:
-/// √ε of the scalar (1.5e-8 for f64, 3.5e-4 for f32).
 /// `a > b`, false when either is NaN (so NaN input counts as degenerate).
 fn exceeds<T: RealField + Copy>(a: T, b: T) -> bool {
     a.partial_cmp(&b) == Some(core::cmp::Ordering::Greater)
 }
 
-fn min_sine<T: RealField + Copy>() -> T {
-    sqrt(T::default_epsilon())
+/// Whether two directions are far enough from parallel: the sine of their angle, |a × b| /
+/// (|a| |b|), is above √ε of the scalar (1.5e-8 for f64, 3.5e-4 for f32), compared squared
+/// (`cross2` = |a × b|², `lengths2` = |a|² |b|²: no square root). NaN is degenerate.
+fn not_parallel<T: RealField + Copy>(cross2: T, lengths2: T) -> bool {
+    exceeds(cross2, T::default_epsilon() * lengths2)
 }
 
 /// Eqs (8) and (9): λ and λp from the X and Z equations of eqs (5) and (6),
@@ -43,8 +44,7 @@ pub fn lambdas_eq8_eq9<T: RealField + Copy>(camera: &Ray<T>, projector: &Ray<T>)
     let (u, w) = (camera.direction.x, camera.direction.z);
     let (l, n) = (projector.direction.x, projector.direction.z);
     let denominator = n * u - w * l;
-    let scale = sqrt(u * u + w * w) * sqrt(l * l + n * n);
-    if !exceeds(denominator.abs(), min_sine::<T>() * scale) {
+    if !not_parallel(denominator * denominator, (u * u + w * w) * (l * l + n * n)) {
         return Err(Error::DegenerateXZ);
     }
     let d = projector.point - camera.point;
@@ -74,14 +74,15 @@ pub fn intersect_paper<T: RealField + Copy>(
 /// and the midpoint of the two closest points; `miss` is the rays' distance. Returns
 /// [`Error::DegenerateGeometry`] when the rays are nearly parallel (sine of their angle below
 /// √ε of the scalar).
+#[inline]
 pub fn closest_approach<T: RealField + Copy>(
     camera: &Ray<T>,
     projector: &Ray<T>,
 ) -> Result<Intersection<T>> {
     let normal = camera.direction.cross(&projector.direction);
     let n2 = normal.norm_squared();
-    let scale = sqrt(camera.direction.norm_squared() * projector.direction.norm_squared());
-    if !exceeds(sqrt(n2), min_sine::<T>() * scale) {
+    let lengths2 = camera.direction.norm_squared() * projector.direction.norm_squared();
+    if !not_parallel(n2, lengths2) {
         return Err(Error::DegenerateGeometry);
     }
     let d = projector.point - camera.point;

@@ -68,6 +68,7 @@ pub fn table2_exterior(plane: usize) -> ExteriorOrientation<f64> {
 }
 
 /// Table 4's ray `k` as a unit vector (the printed cosines normalised).
+#[inline]
 pub fn table4_direction(k: usize) -> Vector3<f64> {
     Vector3::from(TABLE4[k].1).normalize()
 }

@@ -39,6 +39,12 @@ pub struct ProjectorRay<T: RealField> {
     pub offset: Vector3<T>,
 }
 
+/// Where a lookup by [`Projector::ray_from`] left off: the index after the ray it found.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RayCursor {
+    next: usize,
+}
+
 /// The projector: a centre and rays sorted by id, in any storage (`[ProjectorRay; N]`, a slice,
 /// `heapless::Vec`, `Vec`): no allocator is needed.
 #[derive(Debug, Clone, PartialEq)]
@@ -91,11 +97,22 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
 
     /// Eq. (5)'s line for a ray id: through centre + offset with direction (l, m, n).
     pub fn ray(&self, id: u16) -> Result<Ray<T>> {
+        self.ray_from(&mut RayCursor::default(), id)
+    }
+
+    /// [`Projector::ray`] for a batch of ids sorted ascending (a labelled frame): the ray after
+    /// the cursor (the last one found) is tried before a binary search, and the cursor moves
+    /// past the ray found. Any order gives the same rays, only slower.
+    pub fn ray_from(&self, cursor: &mut RayCursor, id: u16) -> Result<Ray<T>> {
         let rays = self.rays.as_ref();
-        let index = rays
-            .binary_search_by_key(&id, |r| r.id)
-            .map_err(|_| Error::UnknownRay(id))?;
-        let ray = &rays[index];
+        let index = match rays.get(cursor.next) {
+            Some(next) if next.id == id => cursor.next,
+            _ => rays
+                .binary_search_by_key(&id, |r| r.id)
+                .map_err(|_| Error::UnknownRay(id))?,
+        };
+        cursor.next = index + 1;
+        let ray = rays.get(index).ok_or(Error::UnknownRay(id))?;
         Ok(Ray {
             point: self.centre + ray.offset,
             direction: ray.direction,
@@ -137,6 +154,32 @@ mod tests {
         assert_eq!(r.direction.x, 0.09012);
         assert_eq!(r.at(0.0), p.centre());
         assert_eq!(p.ray(3), Err(Error::UnknownRay(3)));
+    }
+
+    #[test]
+    fn cursor_finds_the_rays_of_any_order() {
+        let rays = [1, 2, 5, 6, 9].map(|id| ray(id, 0.01 * f64::from(id), 0.1));
+        let p = Projector::new(Vector3::zeros(), rays).unwrap();
+        // Sorted with gaps, repeats, backwards, an unknown id between known ones.
+        for ids in [
+            &[1, 2, 5, 6, 9][..],
+            &[2, 6, 9],
+            &[9, 5, 5, 1],
+            &[5, 6, 1, 2, 9, 6],
+        ] {
+            let mut cursor = RayCursor::default();
+            for &id in ids {
+                assert_eq!(p.ray_from(&mut cursor, id), p.ray(id), "{ids:?}");
+                assert_eq!(
+                    p.ray_from(&mut cursor, id).unwrap().direction.x,
+                    0.01 * f64::from(id)
+                );
+            }
+        }
+        let mut cursor = RayCursor::default();
+        p.ray_from(&mut cursor, 2).unwrap();
+        assert_eq!(p.ray_from(&mut cursor, 3), Err(Error::UnknownRay(3)));
+        assert_eq!(p.ray_from(&mut cursor, 5).unwrap().direction.x, 0.05);
     }
 
     #[test]

@@ -9,7 +9,7 @@
 use crate::camera::{InnerOrientation, PixelGrid};
 use crate::collinearity::{camera_ray_direction, project_camera_point, ExteriorOrientation};
 use crate::intersection::{closest_approach, intersect_paper, Intersection};
-use crate::projector::{Projector, ProjectorRay, Ray};
+use crate::projector::{Projector, ProjectorRay, Ray, RayCursor};
 use crate::{Error, Result};
 use nalgebra::{Matrix3, RealField, Vector3};
 
@@ -159,7 +159,20 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Rig<T, S> {
 
     /// The world point of dot `id` observed at pixel (col, row), with λ, λp and the miss distance.
     pub fn reconstruct(&self, id: u16, col: T, row: T, method: Method) -> Result<Intersection<T>> {
-        let projector = self.projector.ray(id)?;
+        self.reconstruct_from(&mut RayCursor::default(), id, col, row, method)
+    }
+
+    /// [`Rig::reconstruct`] for a batch sorted by ray id: the ray is found from `cursor` (see
+    /// [`Projector::ray_from`]).
+    pub fn reconstruct_from(
+        &self,
+        cursor: &mut RayCursor,
+        id: u16,
+        col: T,
+        row: T,
+        method: Method,
+    ) -> Result<Intersection<T>> {
+        let projector = self.projector.ray_from(cursor, id)?;
         let camera = self.camera_ray(col, row);
         let mut hit = match method {
             Method::Paper => intersect_paper(&camera, &projector)?,

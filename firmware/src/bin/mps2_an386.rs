@@ -1,7 +1,8 @@
 //! Board shell for QEMU's `mps2-an386` (Cortex-M4F, CMSDK UART0 at 0x4000_4000).
 //!
 //! At boot it prints the smoke line (followed by a 0x00 so a host's frame reader drops it), then
-//! serves the protocol on UART0 until a `Reset` request, and resets.
+//! serves the protocol on UART0 until a `Reset` request, and resets. Between bytes it sleeps
+//! (WFI) until UART0's RX interrupt (IRQ 0) is pending.
 //!
 //! The calibration "flash" is the top 64 KiB of the 4 MiB code SRAM (0x003F_0000), outside every
 //! linker region (see `build.rs`): `-kernel` loads only the ELF's segments, so a system reset
@@ -14,11 +15,13 @@
 #[cfg(target_os = "none")]
 mod board {
     use core::mem::MaybeUninit;
-    use cortex_m::peripheral::SCB;
+    use cortex_m::interrupt::InterruptNumber;
+    use cortex_m::peripheral::{NVIC, SCB};
     use cortex_m_rt::entry;
     use deltaz_firmware::device::MAX_CALIBRATION;
     use deltaz_firmware::probe::CortexProbe;
     use deltaz_firmware::server::Server;
+    use deltaz_firmware::smoke::{smoke_line, smoke_point, SMOKE_LINE};
     use deltaz_firmware::store::{Store, HEADER};
     use embedded_io::{ErrorType, Read, Write};
     use embedded_storage::nor_flash::{
@@ -34,9 +37,25 @@ mod board {
     const DATA: usize = UART0;
     const STATE: usize = UART0 + 0x04;
     const CTRL: usize = UART0 + 0x08;
+    const INTCLEAR: usize = UART0 + 0x0C;
     const BAUDDIV: usize = UART0 + 0x10;
     const TX_FULL: u32 = 1;
     const RX_FULL: u32 = 2;
+    /// CTRL: transmitter (bit 0), receiver (1) and RX interrupt (3) enabled.
+    const TX_RX_RXINT: u32 = 0b1011;
+    /// INTSTATUS/INTCLEAR: the RX interrupt.
+    const RX_INT: u32 = 2;
+
+    /// UART0's RX interrupt (IRQ 0 on mps2-an386).
+    #[derive(Clone, Copy)]
+    struct Uart0Rx;
+
+    // SAFETY: 0 is UART0's RX interrupt line on this board, a valid IRQ number.
+    unsafe impl InterruptNumber for Uart0Rx {
+        fn number(self) -> u16 {
+            0
+        }
+    }
 
     impl Uart0 {
         fn init() -> Self {
@@ -44,7 +63,7 @@ mod board {
             // nothing else in the program touches.
             unsafe {
                 core::ptr::write_volatile(BAUDDIV as *mut u32, 217);
-                core::ptr::write_volatile(CTRL as *mut u32, 0b11);
+                core::ptr::write_volatile(CTRL as *mut u32, TX_RX_RXINT);
             }
             Uart0
         }
@@ -60,10 +79,28 @@ mod board {
             unsafe { core::ptr::write_volatile(DATA as *mut u32, u32::from(byte)) };
         }
 
+        /// The next received byte, sleeping (WFI) until it comes: the RX interrupt is enabled
+        /// in the NVIC only inside the wait, with PRIMASK set, so it wakes the core and no
+        /// handler runs.
         fn read_byte(&mut self) -> u8 {
-            while self.state() & RX_FULL == 0 {}
-            // SAFETY: as in `init`; RX holds a byte, reading DATA takes it.
-            unsafe { core::ptr::read_volatile(DATA as *const u32) as u8 }
+            cortex_m::interrupt::free(|_| {
+                while self.state() & RX_FULL == 0 {
+                    // SAFETY: PRIMASK is set (inside `free`): the interrupt can only end the
+                    // WFI; it is masked again before PRIMASK clears.
+                    unsafe { NVIC::unmask(Uart0Rx) };
+                    cortex_m::asm::wfi();
+                    NVIC::mask(Uart0Rx);
+                }
+                // SAFETY: as in `init`; RX holds a byte, reading DATA takes it; INTCLEAR drops
+                // the RX interrupt it raised.
+                let byte = unsafe {
+                    let byte = core::ptr::read_volatile(DATA as *const u32) as u8;
+                    core::ptr::write_volatile(INTCLEAR as *mut u32, RX_INT);
+                    byte
+                };
+                NVIC::unpend(Uart0Rx);
+                byte
+            })
         }
     }
 
@@ -163,10 +200,9 @@ mod board {
     #[entry]
     fn main() -> ! {
         let mut uart = Uart0::init();
-        let _ = match deltaz_firmware::smoke::smoke_point() {
-            Some(p) => writeln!(uart, "deltaz smoke point {:.6} {:.6} {:.6}", p.x, p.y, p.z),
-            None => writeln!(uart, "deltaz smoke degenerate"),
-        };
+        let mut line = [0u8; SMOKE_LINE];
+        let n = smoke_line(smoke_point(), &mut line);
+        line.iter().take(n).for_each(|&b| uart.write_byte(b));
         uart.write_byte(0);
         let probe = cortex_m::Peripherals::take().map(|p| CortexProbe::start(p.SYST));
         let store = Store::new(RegionFlash, [(0, SLOT), (SLOT, 2 * SLOT)]);

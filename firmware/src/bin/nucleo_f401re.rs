@@ -1,38 +1,250 @@
-//! Board shell for the STM32 Nucleo-F401RE (84 MHz Cortex-M4F, 512 KiB flash, 96 KiB SRAM;
-//! stm32f4xx-hal): the protocol on USART2 (PA2/PA3, wired to the ST-LINK's USB virtual COM port)
-//! at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the calibration store
-//! in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000), SysTick at the core
-//! clock. The server (39.8 KB) is written in place into a static and the stack peaks at about
-//! 6.9 KB (measured under QEMU with the same code).
+//! Board shell for the STM32 Nucleo-F401RE (84 MHz Cortex-M4F, 512 KiB flash, 96 KiB SRAM),
+//! on the `stm32f4` register definitions (no HAL: its clock set-up brought panic paths and
+//! 8.7 KB of flash): the protocol on USART2 (PA2/PA3, wired to the ST-LINK's USB virtual COM
+//! port) at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the
+//! calibration store in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000),
+//! SysTick at the core clock. The server (39.8 KB) is written in place into a static and the
+//! stack peaks at about 7.0 KB (measured under QEMU with the same code).
+//!
+//! - **Watchdog**: the independent watchdog (IWDG, its own ~32 kHz LSI) resets the board when
+//!   it is not fed for about 5 s ([`WATCHDOG_RELOAD`]); it is fed while the board waits for a
+//!   byte (woken by SysTick at least every 0.2 s) and in every flash wait. The longest
+//!   operation, erasing the 128 KiB sector 5 (2 s at most), stalls the CPU (the code runs from
+//!   the same flash bank), so the timeout covers it even with the LSI at its fastest (47 kHz:
+//!   3.4 s).
+//! - **Idle**: the board sleeps (WFI) until USART2 has a byte or SysTick wraps, instead of
+//!   polling; USART2's RX interrupt is enabled in the NVIC only inside that wait, with PRIMASK
+//!   set, so it wakes the core but no handler runs.
 //!
 //! Build: `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release
-//! --features nucleo-f401re --bin nucleo_f401re`; flash with probe-rs:
+//! --features nucleo-f401re --bin nucleo_f401re`; flash and run with probe-rs:
 //! `probe-rs run --chip STM32F401RETx target/thumbv7em-none-eabihf/release/nucleo_f401re`.
 #![no_std]
 #![no_main]
 
 use core::mem::MaybeUninit;
-use cortex_m::peripheral::SCB;
-use cortex_m_rt::entry;
+use cortex_m::peripheral::{NVIC, SCB};
+use cortex_m_rt::{entry, exception};
 use deltaz_firmware::probe::CortexProbe;
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::Store;
 use embedded_storage::nor_flash::{
-    ErrorType as FlashErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+    check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash, NorFlashErrorKind,
+    ReadNorFlash,
 };
 use panic_halt as _;
-use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
-use stm32f4xx_hal::prelude::*;
-use stm32f4xx_hal::serial::{config::Config, Serial};
-use stm32f4xx_hal::{block, pac, rcc};
+use stm32f4::stm32f401 as pac;
 
 /// Sector 4 (offset from the flash base).
 const SLOT_A: (u32, u32) = (0x1_0000, 0x2_0000);
 /// Sector 5.
 const SLOT_B: (u32, u32) = (0x2_0000, 0x4_0000);
+/// The on-chip flash: base address and size.
+const FLASH_BASE: usize = 0x0800_0000;
+const FLASH_SIZE: usize = 512 * 1024;
+/// Where each flash sector starts (offsets), and the end of the last.
+const SECTORS: [u32; 9] = [
+    0x0_0000, 0x0_4000, 0x0_8000, 0x0_C000, 0x1_0000, 0x2_0000, 0x4_0000, 0x6_0000, 0x8_0000,
+];
+/// IWDG: LSI / 64 (500 Hz at 32 kHz), reload 2500: about 5 s (3.4 s at 47 kHz, 9.4 s at
+/// 17 kHz, the LSI's limits).
+const WATCHDOG_RELOAD: u16 = 2500;
 
-/// The on-chip flash, unlocked only for the duration of each erase or write.
-struct Flash(LockedFlash);
+/// The independent watchdog, started: a handle that feeds it (the board's two users, the
+/// serial port and the flash, each hold one).
+#[derive(Clone, Copy)]
+struct Watchdog;
+
+impl Watchdog {
+    fn start(iwdg: pac::IWDG) -> Self {
+        iwdg.kr().write(|w| w.key().start());
+        iwdg.kr().write(|w| w.key().unlock());
+        iwdg.pr().write(|w| w.pr().divide_by64());
+        iwdg.rlr().write(|w| w.rl().set(WATCHDOG_RELOAD));
+        while iwdg.sr().read().bits() != 0 {}
+        Watchdog.feed();
+        Watchdog
+    }
+
+    fn feed(self) {
+        // SAFETY: only a started `Watchdog` exists (the IWDG was taken by `start`); the feed is
+        // one write of the key register, whole and idempotent, so concurrent handles are fine.
+        let iwdg = unsafe { pac::IWDG::steal() };
+        iwdg.kr().write(|w| w.key().feed());
+    }
+}
+
+/// 84 MHz from the ST-LINK's 8 MHz MCO (HSE bypass): PLL M = 8 (1 MHz in), N = 336, P = 4;
+/// AHB 84 MHz, APB1 42 MHz (÷ 2, its limit), APB2 84 MHz; flash 2 wait states, prefetch and
+/// instruction cache (not the data cache: the store erases and writes the flash it reads).
+fn clocks(rcc: &pac::RCC, flash: &pac::FLASH) {
+    // The bypass is set while the HSE is off, then the HSE started.
+    rcc.cr().modify(|_, w| w.hsebyp().set_bit());
+    rcc.cr().modify(|_, w| w.hseon().set_bit());
+    while rcc.cr().read().hserdy().bit_is_clear() {}
+    // SAFETY: M = 8, N = 336, Q = 7 are in their fields' ranges (2..=63, 50..=432, 2..=15) and
+    // give a 336 MHz VCO from a 1 MHz input, both within the datasheet's limits.
+    rcc.pllcfgr().write(|w| unsafe {
+        w.pllm()
+            .bits(8)
+            .plln()
+            .bits(336)
+            .pllq()
+            .bits(7)
+            .pllp()
+            .div4()
+            .pllsrc()
+            .hse()
+    });
+    rcc.cr().modify(|_, w| w.pllon().set_bit());
+    flash
+        .acr()
+        .write(|w| w.latency().ws2().prften().enabled().icen().enabled());
+    while rcc.cr().read().pllrdy().bit_is_clear() {}
+    // APB1 halved before the switch, so it never runs above 42 MHz.
+    rcc.cfgr().modify(|_, w| w.ppre1().div2());
+    rcc.cfgr().modify(|_, w| w.sw().pll());
+    while !rcc.cfgr().read().sws().is_pll() {}
+}
+
+/// USART2 on PA2 (TX) and PA3 (RX, pulled up), alternate function 7: 2 Mbaud 8N1 from APB1's
+/// 42 MHz (USARTDIV 1.3125 = 1 + 5/16, exact), the RX interrupt flag raised for the idle wait.
+fn usart2(rcc: &pac::RCC, gpioa: &pac::GPIOA, usart: &pac::USART2) {
+    rcc.ahb1enr().modify(|_, w| w.gpioaen().set_bit());
+    rcc.apb1enr().modify(|_, w| w.usart2en().set_bit());
+    gpioa.afrl().modify(|_, w| w.afrl2().af7().afrl3().af7());
+    gpioa.pupdr().modify(|_, w| w.pupdr3().pull_up());
+    gpioa
+        .moder()
+        .modify(|_, w| w.moder2().alternate().moder3().alternate());
+    usart
+        .brr()
+        .write(|w| w.div_mantissa().set(1).div_fraction().set(5));
+    usart.cr1().write(|w| {
+        w.ue()
+            .set_bit()
+            .te()
+            .set_bit()
+            .re()
+            .set_bit()
+            .rxneie()
+            .set_bit()
+    });
+}
+
+/// USART2 as an embedded-io serial port, the watchdog fed while it waits.
+struct Vcp {
+    usart: pac::USART2,
+    dog: Watchdog,
+}
+
+impl Vcp {
+    /// The next received byte, sleeping until it comes (see the module docs). Overrun and
+    /// framing errors lose bytes; the framing layer resynchronises at the next delimiter.
+    fn read_byte(&mut self) -> u8 {
+        loop {
+            self.dog.feed();
+            let byte = cortex_m::interrupt::free(|_| {
+                if self.usart.sr().read().rxne().bit_is_clear() {
+                    // SAFETY: PRIMASK is set (inside `free`), so the unmasked interrupt can
+                    // only wake the WFI, never run a handler; it is masked again below before
+                    // PRIMASK clears.
+                    unsafe { NVIC::unmask(pac::Interrupt::USART2) };
+                    cortex_m::asm::wfi();
+                    NVIC::mask(pac::Interrupt::USART2);
+                }
+                // Reading SR then DR clears RXNE and the error flags.
+                let ready = self.usart.sr().read().rxne().bit_is_set();
+                let byte = ready.then(|| self.usart.dr().read().dr().bits() as u8);
+                NVIC::unpend(pac::Interrupt::USART2);
+                byte
+            });
+            if let Some(byte) = byte {
+                return byte;
+            }
+        }
+    }
+}
+
+impl embedded_io::ErrorType for Vcp {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io::Read for Vcp {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        let Some(first) = buf.first_mut() else {
+            return Ok(0);
+        };
+        *first = self.read_byte();
+        Ok(1)
+    }
+}
+
+impl embedded_io::Write for Vcp {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        for &byte in buf {
+            while self.usart.sr().read().txe().bit_is_clear() {}
+            self.usart.dr().write(|w| w.dr().set(u16::from(byte)));
+        }
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        while self.usart.sr().read().tc().bit_is_clear() {}
+        Ok(())
+    }
+}
+
+/// The on-chip flash, unlocked only for the duration of each erase or write; every wait
+/// feeds the watchdog.
+struct Flash {
+    flash: pac::FLASH,
+    dog: Watchdog,
+}
+
+impl Flash {
+    /// Unlock the control register, run `op`, wait for the end, lock again; a programming
+    /// error flag fails it.
+    fn operate(&mut self, op: impl FnOnce(&pac::FLASH)) -> Result<(), NorFlashErrorKind> {
+        let f = &self.flash;
+        self.wait();
+        f.keyr().write(|w| w.key().set(0x4567_0123));
+        f.keyr().write(|w| w.key().set(0xCDEF_89AB));
+        // Clear the error flags of an earlier operation (write 1 to clear).
+        f.sr().write(|w| {
+            w.pgserr()
+                .clear_bit_by_one()
+                .pgperr()
+                .clear_bit_by_one()
+                .pgaerr()
+                .clear_bit_by_one()
+                .wrperr()
+                .clear_bit_by_one()
+                .operr()
+                .clear_bit_by_one()
+        });
+        op(f);
+        self.wait();
+        let sr = self.flash.sr().read();
+        let failed = sr.pgserr().bit_is_set()
+            || sr.pgperr().bit_is_set()
+            || sr.pgaerr().bit_is_set()
+            || sr.wrperr().bit_is_set()
+            || sr.operr().bit_is_set();
+        self.flash.cr().write(|w| w.lock().set_bit());
+        if failed {
+            Err(NorFlashErrorKind::Other)
+        } else {
+            Ok(())
+        }
+    }
+
+    fn wait(&self) {
+        while self.flash.sr().read().bsy().bit_is_set() {
+            self.dog.feed();
+        }
+    }
+}
 
 impl FlashErrorType for Flash {
     type Error = NorFlashErrorKind;
@@ -42,88 +254,96 @@ impl ReadNorFlash for Flash {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        ReadNorFlash::read(&mut self.0, offset, bytes).map_err(|e| e.kind())
+        check_read(self, offset, bytes.len())?;
+        for (i, b) in bytes.iter_mut().enumerate() {
+            // SAFETY: `check_read` kept offset + i inside the 512 KiB of flash, which is
+            // always readable memory.
+            *b = unsafe {
+                core::ptr::read_volatile((FLASH_BASE + offset as usize + i) as *const u8)
+            };
+        }
+        Ok(())
     }
 
     fn capacity(&self) -> usize {
-        ReadNorFlash::capacity(&self.0)
+        FLASH_SIZE
     }
 }
 
 impl NorFlash for Flash {
     const WRITE_SIZE: usize = 1;
-    /// Sector 4's size; sector 5 is two of it (the HAL erases whole sectors).
-    const ERASE_SIZE: usize = 64 * 1024;
+    /// The smallest sector's size; `erase` takes whole sectors only.
+    const ERASE_SIZE: usize = 16 * 1024;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        NorFlash::erase(&mut self.0.unlocked(), from, to).map_err(|e| e.kind())
+        check_erase(self, from, to)?;
+        let whole = |at: u32| SECTORS.contains(&at);
+        if !(whole(from) && whole(to)) {
+            return Err(NorFlashErrorKind::NotAligned);
+        }
+        for (sector, start) in SECTORS.iter().enumerate() {
+            if (from..to).contains(start) {
+                self.operate(|f| {
+                    // SAFETY: `sector` < 8 fits SNB (4 bits); x32 parallelism needs
+                    // 2.7-3.6 V (the Nucleo runs at 3.3 V).
+                    f.cr().write(|w| {
+                        unsafe { w.ser().set_bit().snb().bits(sector as u8) }
+                            .psize()
+                            .psize32()
+                    });
+                    f.cr().modify(|_, w| w.strt().set_bit());
+                })?;
+            }
+        }
+        Ok(())
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        NorFlash::write(&mut self.0.unlocked(), offset, bytes).map_err(|e| e.kind())
-    }
-}
-
-/// USART2 as an embedded-io serial port (the HAL speaks embedded-io 0.6; the library 0.7).
-struct Vcp(Serial<pac::USART2>);
-
-impl embedded_io::ErrorType for Vcp {
-    type Error = embedded_io::ErrorKind;
-}
-
-impl embedded_io::Read for Vcp {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        let Some(first) = buf.first_mut() else {
-            return Ok(0);
-        };
-        // Overrun and framing errors drop bytes; the framing layer resynchronises at the
-        // next delimiter, so keep reading.
-        *first = loop {
-            if let Ok(byte) = block!(self.0.read()) {
-                break byte;
-            }
-        };
-        Ok(1)
-    }
-}
-
-impl embedded_io::Write for Vcp {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        for &byte in buf {
-            block!(self.0.write(byte)).map_err(|_| embedded_io::ErrorKind::Other)?;
+        check_write(self, offset, bytes.len())?;
+        for (i, &byte) in bytes.iter().enumerate() {
+            let at = (FLASH_BASE + offset as usize + i) as *mut u8;
+            self.operate(|f| {
+                f.cr().write(|w| w.pg().set_bit().psize().psize8());
+                // SAFETY: `check_write` kept the address inside the flash; with PG set, a byte
+                // write to it programs that byte (an erased one: the store writes each once).
+                unsafe { core::ptr::write_volatile(at, byte) };
+            })?;
         }
-        Ok(buf.len())
-    }
-
-    fn flush(&mut self) -> Result<(), Self::Error> {
-        block!(self.0.flush()).map_err(|_| embedded_io::ErrorKind::Other)
+        Ok(())
     }
 }
+
+/// SysTick wraps every 0.2 s (2²⁴ cycles at 84 MHz) and wakes the idle wait to feed the
+/// watchdog; nothing else to do.
+#[exception]
+fn SysTick() {}
 
 #[entry]
 fn main() -> ! {
     if let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) {
-        // 8 MHz from the ST-LINK's MCO (bypass), PLL to 84 MHz; APB1 at 42 MHz gives 2 Mbaud
-        // exactly (USARTDIV 1.3125).
-        let cfg = rcc::Config::hse(8.MHz())
-            .bypass_hse_oscillator()
-            .sysclk(84.MHz())
-            .pclk1(42.MHz());
-        let mut rcc = dp.RCC.freeze(cfg);
-        let gpioa = dp.GPIOA.split(&mut rcc);
-        let serial = dp.USART2.serial(
-            (gpioa.pa2, gpioa.pa3),
-            Config::default().baudrate(2_000_000.bps()),
-            &mut rcc,
-        );
-        let store = Store::new(Flash(LockedFlash::new(dp.FLASH)), [SLOT_A, SLOT_B]);
-        if let (Ok(serial), Ok(store)) = (serial, store) {
-            let probe = CortexProbe::start(cp.SYST);
+        clocks(&dp.RCC, &dp.FLASH);
+        usart2(&dp.RCC, &dp.GPIOA, &dp.USART2);
+        let mut syst = cp.SYST;
+        syst.enable_interrupt();
+        let probe = CortexProbe::start(syst);
+        // The watchdog stops while a debugger (probe-rs) holds the core halted.
+        dp.DBGMCU
+            .apb1_fz()
+            .modify(|_, w| w.dbg_iwdg_stop().set_bit());
+        let dog = Watchdog::start(dp.IWDG);
+        let flash = Flash {
+            flash: dp.FLASH,
+            dog,
+        };
+        if let Ok(store) = Store::new(flash, [SLOT_A, SLOT_B]) {
             // The server lives in a static, built there in place (no stack copy of it).
             if let Some(slot) = cortex_m::singleton!(: MaybeUninit<Server<Flash, CortexProbe>> = MaybeUninit::uninit())
             {
                 let server = Server::boot_in(slot, store, probe);
-                let _ = server.serve(&mut Vcp(serial));
+                let Ok(()) = server.serve(&mut Vcp {
+                    usart: dp.USART2,
+                    dog,
+                });
             }
         }
     }

@@ -152,7 +152,8 @@ pub fn decode_calibration_from<E>(
         return Err(WireError::UnknownMessage);
     }
     for _ in 0..header.rays {
-        let ray: WireRay = next_item(len, &mut at, &mut read, &mut window[..MAX_WIRE_RAY])?;
+        let ray_window = window.get_mut(..MAX_WIRE_RAY).unwrap_or_default();
+        let ray: WireRay = next_item(len, &mut at, &mut read, ray_window)?;
         if !take_ray(ray) {
             return Err(WireError::Malformed);
         }
@@ -172,9 +173,9 @@ fn next_item<T: for<'de> Deserialize<'de>, E>(
     window: &mut [u8],
 ) -> Result<T, WireError> {
     let n = len.saturating_sub(*at).min(window.len());
-    let window = &mut window[..n];
+    let window = window.get_mut(..n).unwrap_or_default();
     read(*at, window).map_err(|_| WireError::Malformed)?;
     let (item, rest) = postcard::take_from_bytes::<T>(window).map_err(|_| WireError::Malformed)?;
-    *at += n - rest.len();
+    *at += window.len() - rest.len();
     Ok(item)
 }

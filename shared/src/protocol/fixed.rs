@@ -56,6 +56,16 @@ impl Dot {
     }
 }
 
+impl Dot {
+    /// Whether the dot lies on a `width` × `height` sensor ([`crate::camera::PixelGrid::contains`]
+    /// of its pixel), in integers: raw / 2^bits − ½ lies in −½ ..= width − ½ exactly when raw ≤
+    /// width · 2^bits (raw ≥ 0 always).
+    pub fn on_sensor(&self, width: u32, height: u32, bits: u8) -> bool {
+        let fits = |raw: u16, extent: u32| u64::from(raw) <= u64::from(extent) << bits;
+        fits(self.col, width) && fits(self.row, height)
+    }
+}
+
 impl Serialize for Dot {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let [a, b] = self.col.to_le_bytes();
@@ -181,40 +191,37 @@ pub enum PointResult {
     Failed(PointStatus),
 }
 
-/// `libm::roundf(x) as i32` (halves away from zero) for |x| ≤ 2^23 (the i24 range of a point),
-/// without libm's software rounding (about 25 instructions, four times a point): the
-/// conversion truncates (one VCVT) and the fraction it drops is exact.
-fn round_half_away(x: f32) -> i32 {
-    let whole = x as i32;
-    let fraction = x - whole as f32;
-    if fraction >= 0.5 {
-        whole + 1
-    } else if fraction <= -0.5 {
-        whole - 1
-    } else {
-        whole
-    }
+/// `libm::roundf(x) as i32` (halves away from zero) given `twice` = 2x, for |x| < 2^30,
+/// without libm's software rounding (about 25 instructions, four times a point) and without a
+/// float comparison: the truncation t of 2x (one VCVT) is ±2⌊|x|⌋, or ±(2⌊|x|⌋ + 1) when the
+/// fraction of |x| is at least ½, and t/2 + t%2 (both truncating) is then |x| rounded half up
+/// with x's sign. Beyond the range the conversion saturates, and so does the result (NaN
+/// gives 0). The callers scale by a power of two times 2 at once (exact).
+fn round_half_away(twice: f32) -> i32 {
+    let t = twice as i32;
+    t / 2 + t % 2
 }
 
 impl PointResult {
     /// Quantise a camera-centred point and its miss distance (mm), in f32 (the device's FPU
     /// arithmetic: scaling by a power of two is exact, so this equals the f64 quantisation).
+    /// A coordinate whose units round beyond ±(2²³ − 1) is out of range, and so is a NaN one.
     pub fn from_camera_centred(point: &Vector3<f32>, miss: f32) -> Self {
         const UNITS: f32 = POINT_UNITS_PER_MM as f32;
-        const LIMIT32: f32 = LIMIT as f32;
-        let mut xyz = [0i32; 3];
-        for (out, &c) in xyz.iter_mut().zip(point.iter()) {
-            let units = c * UNITS;
-            // NaN fails the range test.
-            if !(-LIMIT32..=LIMIT32).contains(&units) {
-                return Self::Failed(PointStatus::OutOfRange);
-            }
-            *out = round_half_away(units);
+        const LIMIT24: i32 = LIMIT as i32;
+        // A NaN coordinate (or opposite infinities) makes the sum NaN; a lone infinity
+        // saturates its conversion and fails the range test.
+        if (point.x + point.y + point.z).is_nan() {
+            return Self::Failed(PointStatus::OutOfRange);
         }
-        let miss = miss * MISS_UNITS_PER_MM as f32;
-        // NaN saturates.
-        let miss = if miss < f32::from(MISS_SATURATED) {
-            round_half_away(miss).max(0) as u8
+        let xyz = [point.x, point.y, point.z].map(|c| round_half_away(c * (2.0 * UNITS)));
+        if xyz.iter().any(|u| !(-LIMIT24..=LIMIT24).contains(u)) {
+            return Self::Failed(PointStatus::OutOfRange);
+        }
+        // Twice the units (NaN saturates).
+        let twice = miss * (2.0 * MISS_UNITS_PER_MM as f32);
+        let miss = if twice < 2.0 * f32::from(MISS_SATURATED) {
+            round_half_away(twice).max(0) as u8
         } else {
             MISS_SATURATED
         };
@@ -247,6 +254,7 @@ impl PointResult {
         }
     }
 
+    #[inline]
     pub(super) fn to_bytes(self) -> [u8; 10] {
         let mut bytes = [0u8; 10];
         match self {
@@ -342,12 +350,13 @@ mod tests {
         let below_half = f32::from_bits(0.5f32.to_bits() - 1);
         let mut values = vec![0.0, -0.0, 0.5, -0.5, below_half, -below_half, 1.5, -2.5];
         values.extend([LIMIT as f32, -(LIMIT as f32), 8_388_606.5, -8_388_606.5]);
+        values.extend([8_388_608.0, -8_388_608.0, 1.0e9, -1.0e9, 1.5e-45, -1.5e-45]);
         for k in -3000..3000 {
             let k = k as f32;
             values.extend([k + 0.5, k - 0.5, k + below_half, k * 1.37, k * 2796.2031]);
         }
         for x in values {
-            assert_eq!(round_half_away(x), libm::roundf(x) as i32, "{x}");
+            assert_eq!(round_half_away(2.0 * x), libm::roundf(x) as i32, "{x}");
         }
     }
 
@@ -366,6 +375,33 @@ mod tests {
         let (col, row) = c.pixel::<f64>(bits);
         assert!((col - 100.123).abs() <= 1.0 / 128.0 && (row - 200.9).abs() <= 1.0 / 128.0);
         assert_eq!(c.pixel::<f32>(bits), (col as f32, row as f32));
+        // On the sensor in fixed point exactly when the grid says so.
+        let grid = crate::camera::PixelGrid {
+            pixel_size: 0.01,
+            width: 768,
+            height: 512,
+            origin_col: 384.0,
+            origin_row: 256.0,
+        };
+        for raw in [
+            0,
+            1,
+            767 * 64,
+            768 * 64 - 1,
+            768 * 64,
+            768 * 64 + 1,
+            512 * 64,
+            u16::MAX,
+        ] {
+            for dot in [Dot { col: raw, row: 0 }, Dot { col: 0, row: raw }] {
+                let (col, row) = dot.pixel::<f64>(bits);
+                assert_eq!(
+                    dot.on_sensor(768, 512, bits),
+                    grid.contains(col, row),
+                    "{dot:?}"
+                );
+            }
+        }
     }
 
     #[test]
@@ -385,6 +421,17 @@ mod tests {
         assert_eq!(PointResult::from_bytes(p.to_bytes()), Some(p));
         let far = PointResult::from_camera_centred(&Vector3::new(0.0, 2048.0, 0.0), 0.0);
         assert_eq!(far, PointResult::Failed(PointStatus::OutOfRange));
+        // The last units inside the range (f32 holds whole units only out there).
+        let edge = (LIMIT / POINT_UNITS_PER_MM) as f32;
+        let inside = PointResult::from_camera_centred(&Vector3::new(edge, 0.0, -edge), 0.0);
+        let mm = LIMIT / POINT_UNITS_PER_MM;
+        assert_eq!(inside.camera_centred_mm(), Some(Vector3::new(mm, 0.0, -mm)));
+        let beyond = PointResult::from_camera_centred(&Vector3::new(0.0, 0.0, -2048.0), 0.0);
+        assert_eq!(beyond, PointResult::Failed(PointStatus::OutOfRange));
+        for inf in [f32::INFINITY, f32::NEG_INFINITY] {
+            let p = PointResult::from_camera_centred(&Vector3::new(1.0, inf, 0.0), 0.0);
+            assert_eq!(p, PointResult::Failed(PointStatus::OutOfRange));
+        }
         let nan = PointResult::from_camera_centred(&Vector3::new(f32::NAN, 0.0, 0.0), 0.0);
         assert_eq!(nan, PointResult::Failed(PointStatus::OutOfRange));
         let wide = PointResult::from_camera_centred(&Vector3::new(1.0, 1.0, 1.0), 5.0);

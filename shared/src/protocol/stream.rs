@@ -83,7 +83,17 @@ pub trait WireItem: Sized {
 
 impl WireItem for Dot {
     fn take(bytes: &[u8], _: u16) -> Option<(Self, &[u8])> {
-        postcard::take_from_bytes(bytes).ok()
+        // postcard's bytes of a `Dot` (a `[u8; 4]`), read directly.
+        match *bytes {
+            [a, b, c, d, ref rest @ ..] => Some((
+                Dot {
+                    col: u16::from_le_bytes([a, b]),
+                    row: u16::from_le_bytes([c, d]),
+                },
+                rest,
+            )),
+            _ => None,
+        }
     }
     fn id(&self) -> u16 {
         0
@@ -92,7 +102,16 @@ impl WireItem for Dot {
 
 impl WireItem for Centroid {
     fn take(bytes: &[u8], previous: u16) -> Option<(Self, &[u8])> {
-        let ((delta, dot), rest) = postcard::take_from_bytes::<(i32, Dot)>(bytes).ok()?;
+        // The id difference: a zigzag varint, read directly when it is one byte (−64 ..= 63,
+        // a batch sorted by id), by postcard otherwise.
+        let (delta, rest) = match *bytes {
+            [byte, ref rest @ ..] if byte < 0x80 => {
+                let half = i32::from(byte >> 1);
+                (if byte & 1 == 0 { half } else { -half - 1 }, rest)
+            }
+            _ => postcard::take_from_bytes::<i32>(bytes).ok()?,
+        };
+        let (dot, rest) = Dot::take(rest, previous)?;
         let id = u16::try_from(i32::from(previous).checked_add(delta)?).ok()?;
         Some((
             Centroid {
@@ -227,16 +246,22 @@ fn read_body(kind: u32, bytes: &[u8]) -> Option<RequestView<'_>> {
 /// last block's code, then the 0x00 delimiter).
 pub struct CobsSink<'o> {
     out: &'o mut dyn FnMut(&[u8]),
-    block: [u8; 255],
-    len: usize,
+    /// The block's code byte, then its bytes `1..=len`; 256 long, so a `u8` index is always in
+    /// it (no bounds check on the hot path).
+    block: [u8; 256],
+    /// Bytes in the block: 0 ..= 253 between pushes (a 254th sends it).
+    len: u8,
 }
+
+/// The most data bytes in one COBS block.
+const COBS_BLOCK: u8 = 254;
 
 impl<'o> CobsSink<'o> {
     /// A sink handing the encoded bytes to `out`.
     pub fn new(out: &'o mut dyn FnMut(&[u8])) -> Self {
         Self {
             out,
-            block: [0; 255],
+            block: [0; 256],
             len: 0,
         }
     }
@@ -244,9 +269,9 @@ impl<'o> CobsSink<'o> {
     /// Send the current block with its code.
     #[inline(never)]
     fn emit(&mut self) {
-        self.block[0] = (self.len + 1) as u8;
-        (self.out)(&self.block[..=self.len]);
-        self.len = 0;
+        let len = core::mem::take(&mut self.len);
+        self.block[0] = len + 1;
+        (self.out)(&self.block[..=usize::from(len)]);
     }
 }
 
@@ -255,15 +280,30 @@ impl Flavor for CobsSink<'_> {
 
     #[inline]
     fn try_push(&mut self, data: u8) -> postcard::Result<()> {
-        if data == 0 {
-            self.emit();
-        } else {
-            self.len += 1;
-            self.block[self.len] = data;
-            if self.len == 254 {
+        self.try_extend(&[data])
+    }
+
+    /// The bytes of a point go through here: the block's length stays in a register.
+    #[inline]
+    fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
+        let mut len = self.len;
+        for &byte in data {
+            if byte == 0 {
+                self.len = len;
                 self.emit();
+                len = 0;
+                continue;
+            }
+            // len ≤ 253 here: it is sent and reset when it reaches 254.
+            len = len.wrapping_add(1);
+            self.block[usize::from(len)] = byte;
+            if len == COBS_BLOCK {
+                self.len = len;
+                self.emit();
+                len = 0;
             }
         }
+        self.len = len;
         Ok(())
     }
 
@@ -301,7 +341,7 @@ impl<F: Flavor> Flavor for Checksummed<F> {
     #[inline]
     fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
         self.digest.update(data);
-        data.iter().try_for_each(|&b| self.inner.try_push(b))
+        self.inner.try_extend(data)
     }
 
     fn finalize(mut self) -> postcard::Result<F::Output> {
@@ -312,10 +352,13 @@ impl<F: Flavor> Flavor for Checksummed<F> {
 }
 
 impl<'b> FrameWriter<Cobs<Slice<'b>>> {
-    /// Start the response to request `seq` of kind `tag` (see [`tag`]) in `buf`.
+    /// Start the response to request `seq` of kind `tag` in `buf`.
     pub fn new(buf: &'b mut [u8], seq: u32, tag: u32) -> Result<Self, WireError> {
         let cobs = Cobs::try_new(Slice::new(buf)).map_err(|_| WireError::BufferFull)?;
-        Self::start(cobs, seq, tag)
+        let mut me = Self::over(cobs);
+        me.put(&seq)?;
+        me.put(&tag)?;
+        Ok(me)
     }
 }
 
@@ -323,14 +366,17 @@ impl<'o> FrameWriter<CobsSink<'o>> {
     /// Start the response to request `seq` of kind `tag`, its bytes handed to `out` block by
     /// block (a UART: no transmit buffer).
     pub fn streamed(out: &'o mut dyn FnMut(&[u8]), seq: u32, tag: u32) -> Self {
-        Self::start(CobsSink::new(out), seq, tag)
-            .unwrap_or_else(|_| unreachable!("a sink takes every byte"))
+        let mut me = Self::over(CobsSink::new(out));
+        // A sink takes every byte (its pushes cannot fail): nothing to report here.
+        let _ = me.put(&seq).and_then(|()| me.put(&tag));
+        me
     }
 }
 
 impl<F: Flavor> FrameWriter<F> {
-    fn start(cobs: F, seq: u32, tag: u32) -> Result<Self, WireError> {
-        let mut me = Self {
+    /// A frame writer over `cobs`, nothing written yet.
+    fn over(cobs: F) -> Self {
+        Self {
             out: postcard::Serializer {
                 output: Checksummed {
                     inner: cobs,
@@ -338,10 +384,7 @@ impl<F: Flavor> FrameWriter<F> {
                 },
             },
             ids: 0,
-        };
-        me.put(&seq)?;
-        me.put(&tag)?;
-        Ok(me)
+        }
     }
 
     /// Append one field.

@@ -192,6 +192,12 @@ fn qemu_device_identifies_like_the_host() {
         stats.stack_peak
     );
     assert!(stats.last_compute_ticks > 0);
+    // Deterministic under -icount: the bar for identification and compute together.
+    let per_point = stats.last_compute_ticks * 40 / points;
+    assert!(
+        per_point <= 1_500,
+        "{per_point} instructions per identified point (goal ≤ 1,500)"
+    );
     // Bit for bit the in-process device's answers.
     assert_eq!(answers, run(&mut Device::in_process(), &rig));
 }
