@@ -21,10 +21,12 @@ pub mod plates;
 pub mod plots;
 pub mod ply;
 pub mod reconstruct_stream;
+pub mod render;
 pub mod residuals;
 pub mod scan;
 pub mod simulate;
 pub mod system;
 pub mod system_bench;
+pub mod target_field;
 
 pub use deltaz_calib::{bundle, compare, projector_calibration, reconstruct, resection};

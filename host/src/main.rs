@@ -1,7 +1,7 @@
 //! `deltaz`: the command-line front end.
 use clap::{Parser, Subcommand};
 use deltaz_host::calibration_plots::residual_plots;
-use deltaz_host::{bundle, cli, demo, device_cli, io, measure, scan, simulate};
+use deltaz_host::{bundle, cli, demo, device_cli, io, measure, render, scan, simulate};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -649,24 +649,30 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let scenario = simulate::load_scenario(&scenario)?;
             let seed = seed.unwrap_or(scenario.seed);
             let sim = simulate::simulate(&scenario, seed);
-            simulate::write_simulation(&out, &sim)?;
-            if images {
-                let spec = simulate::images::ImageSpec {
-                    depth: if sixteen_bit {
-                        measure::render::BitDepth::Sixteen
-                    } else {
-                        measure::render::BitDepth::Eight
-                    },
-                    ..Default::default()
-                };
+            let spec = simulate::images::ImageSpec {
+                depth: if sixteen_bit {
+                    render::BitDepth::Sixteen
+                } else {
+                    render::BitDepth::Eight
+                },
+                ..Default::default()
+            };
+            let rendered = io::atomic::write_dir_all_or_nothing(&out, |dir| {
+                simulate::write_simulation(dir, &sim)?;
+                if !images {
+                    return Ok(None);
+                }
                 let progress = cli::Output::default()
                     .progress(format!("rendering the images of {}", scenario.name));
-                let images = simulate::images::write_images(&scenario, seed, &spec, &out)?;
-                let n = simulate::objects::write_objects(&scenario, seed, &out)?;
+                let images = simulate::images::write_images(&scenario, seed, &spec, dir)?;
+                let objects = simulate::objects::write_objects(&scenario, seed, dir)?;
                 progress.finish_and_clear();
+                Ok(Some((images, objects)))
+            })?;
+            if let Some((images, objects)) = rendered {
                 println!("{images} images -> {}", out.join("images").display());
                 println!(
-                    "{n} test object frames -> {}",
+                    "{objects} test object frames -> {}",
                     out.join("images/objects").display()
                 );
             }

@@ -398,14 +398,6 @@ pub fn ray_misses(rays: &[(u16, f64, f64)]) -> Result<String> {
     Ok(svg)
 }
 
-/// Writes plots into `dir` (created if missing), all or nothing; their paths.
-pub fn write_plots<N: AsRef<str>>(
-    dir: &std::path::Path,
-    plots: &[(N, String)],
-) -> Result<Vec<std::path::PathBuf>> {
-    write_with_plots(&[], Some(dir), plots)
-}
-
 /// Writes `files` and, with `dir`, the plots into it (created if missing), all or nothing: when
 /// any write fails, no file is created or changed and a directory created here is removed.
 /// Returns the plots' paths.

@@ -5,7 +5,6 @@
 pub mod images;
 pub mod observations;
 
-use crate::io::atomic::write_atomic;
 use crate::system::SystemFile;
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -40,8 +39,8 @@ fn slashed(v: &serde_json::Value) -> String {
         .unwrap_or_default()
 }
 
-/// The demo's result files, written into `out` once everything is computed: `cloud.ply`,
-/// `system.json`, the plots, `report.json` and `report.md`.
+/// The demo's result files, written into `out` once everything is computed, all or nothing:
+/// `cloud.ply`, `system.json`, the plots, `report.json` and `report.md`.
 fn write_results(
     out: &Path,
     ply: &[u8],
@@ -50,13 +49,15 @@ fn write_results(
     report: &serde_json::Value,
     md: &str,
 ) -> Result<()> {
-    write_atomic(&out.join("cloud.ply"), ply)?;
-    write_atomic(&out.join("system.json"), system.to_json()?.as_bytes())?;
-    crate::plots::write_plots(out, plots)?;
-    write_atomic(
-        &out.join("report.json"),
-        (serde_json::to_string_pretty(report)? + "\n").as_bytes(),
-    )?;
-    write_atomic(&out.join("report.md"), md.as_bytes())?;
+    let system = system.to_json()?;
+    let report = serde_json::to_string_pretty(report)? + "\n";
+    let files = [
+        (out.join("cloud.ply"), ply),
+        (out.join("system.json"), system.as_bytes()),
+        (out.join("report.json"), report.as_bytes()),
+        (out.join("report.md"), md.as_bytes()),
+    ];
+    let files: Vec<(&Path, &[u8])> = files.iter().map(|(p, b)| (p.as_path(), *b)).collect();
+    crate::plots::write_with_plots(&files, Some(out), plots)?;
     Ok(())
 }

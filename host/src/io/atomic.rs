@@ -62,6 +62,46 @@ impl Drop for Staged {
     }
 }
 
+/// A directory of files written all or nothing: `fill` writes into a fresh staging directory
+/// inside `out` (`out` created if missing), and only when it succeeds is every file it wrote
+/// moved to the same place under `out` (replacing files of the same name). When `fill` fails,
+/// the staging directory goes, and `out` too if it was created here, so `out` is as it was.
+pub fn write_dir_all_or_nothing<T>(
+    out: &Path,
+    fill: impl FnOnce(&Path) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    let created = !out.exists();
+    std::fs::create_dir_all(out)
+        .map_err(|e| FileError::whole(out, format!("cannot create the directory: {e}")))?;
+    let staging = out.join(format!(".staging{}", std::process::id()));
+    let result = std::fs::create_dir(&staging)
+        .map_err(|e| FileError::whole(&staging, format!("cannot create: {e}")).into())
+        .and_then(|()| fill(&staging))
+        .and_then(|value| move_tree(&staging, out).map(|()| value));
+    let _ = std::fs::remove_dir_all(&staging);
+    if result.is_err() && created {
+        let _ = std::fs::remove_dir_all(out);
+    }
+    result
+}
+
+/// Moves every file below `from` to the same relative place below `to`.
+fn move_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
+    for entry in std::fs::read_dir(from)? {
+        let entry = entry?;
+        let target = to.join(entry.file_name());
+        if entry.file_type()?.is_dir() {
+            std::fs::create_dir_all(&target)
+                .map_err(|e| FileError::whole(&target, format!("cannot create: {e}")))?;
+            move_tree(&entry.path(), &target)?;
+        } else {
+            std::fs::rename(entry.path(), &target)
+                .map_err(|e| FileError::whole(&target, format!("cannot write: {e}")))?;
+        }
+    }
+    Ok(())
+}
+
 /// `bytes` in a complete, synced temporary file beside `path`; its name.
 fn write_temporary(path: &Path, bytes: &[u8]) -> Result<std::path::PathBuf> {
     let dir = match path.parent() {
@@ -119,6 +159,32 @@ mod tests {
         let e = write_atomic(&path, b"x").unwrap_err();
         assert!(e.to_string().contains("a.txt"), "{e}");
         assert!(!path.exists());
+    }
+
+    #[test]
+    fn a_directory_all_or_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let failed = write_dir_all_or_nothing::<()>(&out, |d| {
+            std::fs::create_dir(d.join("images"))?;
+            std::fs::write(d.join("images/a.png"), b"a")?;
+            anyhow::bail!("rendering failed")
+        });
+        assert!(failed.is_err());
+        assert!(!out.exists());
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(out.join("kept.csv"), b"old").unwrap();
+        let n = write_dir_all_or_nothing(&out, |d| {
+            std::fs::create_dir(d.join("images"))?;
+            std::fs::write(d.join("images/a.png"), b"a")?;
+            std::fs::write(d.join("kept.csv"), b"new")?;
+            Ok(2)
+        })
+        .unwrap();
+        assert_eq!(n, 2);
+        assert_eq!(std::fs::read(out.join("images/a.png")).unwrap(), b"a");
+        assert_eq!(std::fs::read(out.join("kept.csv")).unwrap(), b"new");
+        assert_eq!(std::fs::read_dir(&out).unwrap().count(), 2);
     }
 
     #[test]

@@ -4,8 +4,8 @@
 //! Speed is reported, never asserted.
 
 use super::detect::GrayView;
-use super::render::{Background, Scene, Spot};
 use super::{measure, CentreMethod, MeasureParams};
+use crate::render::{Background, Scene, Spot};
 use std::time::Instant;
 
 /// A grid of `cols × rows` dots filling a `width × height` image, radii cycling through

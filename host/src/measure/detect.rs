@@ -554,7 +554,7 @@ mod tests {
 
     #[test]
     fn noise_estimate() {
-        use crate::measure::render::{Background, Scene};
+        use crate::render::{Background, Scene};
         let scene = Scene {
             width: 300,
             height: 200,

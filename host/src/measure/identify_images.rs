@@ -23,9 +23,7 @@ use deltaz_shared::collinearity::Camera;
 use nalgebra::Vector2;
 use std::path::{Path, PathBuf};
 
-/// The file-stem suffix of a plate image taken with the projector off (same pose as the image
-/// without the suffix): its control targets are measured there, free of projected dots.
-pub const CONTROL_SUFFIX: &str = "_control";
+use crate::target_field::CONTROL_SUFFIX;
 
 /// How much larger (in area) than the median dot the marker must be.
 pub const MARKER_AREA_RATIO: f64 = 1.8;

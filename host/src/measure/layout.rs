@@ -38,7 +38,7 @@
 //!   approximate inner orientation good enough to project them within the tolerance (8 pixels by
 //!   default; the paper camera's k1 moves the corners by 7 pixels before calibration).
 //!
-//! [`distinct_targets`] picks them from a control layout by a fixed rule (the simulator renders
+//! [`crate::target_field::distinct_targets`] picks them from a control layout by a fixed rule (the simulator renders
 //! those larger), so a layout file alone says which targets must be made distinct.
 
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
@@ -46,44 +46,13 @@ use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 use std::fmt;
 
+use crate::target_field::{distinct_targets, DISTINCT_COUNT};
+
 /// Matches a labelling needs before its residual sets the bar for the others.
 const MIN_FIT_POINTS: usize = 6;
 
 /// At most this many assignments are refined by resection.
 const MAX_REFINED: usize = 2000;
-
-/// How many distinct targets [`distinct_targets`] picks.
-pub const DISTINCT_COUNT: usize = 5;
-
-/// The rule that picks the distinct targets of a layout: the most populated height level
-/// (coordinates rounded to 1 mm), and there the `count` points nearest the level's centroid
-/// (the ones most likely inside every image), ties broken by label.
-pub fn distinct_targets(points: &[(String, Vector3<f64>)], count: usize) -> Vec<String> {
-    let level = |p: &Vector3<f64>| p.z.round() as i64;
-    let mut levels = std::collections::BTreeMap::<i64, usize>::new();
-    for (_, p) in points {
-        *levels.entry(level(p)).or_default() += 1;
-    }
-    let Some((&z, _)) = levels.iter().max_by_key(|&(z, n)| (*n, -*z)) else {
-        return Vec::new();
-    };
-    let on_level: Vec<(&String, Vector2<f64>)> = points
-        .iter()
-        .filter(|(_, p)| level(p) == z)
-        .map(|(l, p)| (l, Vector2::new(p.x.round(), p.y.round())))
-        .collect();
-    let centroid = on_level.iter().map(|(_, p)| p).sum::<Vector2<f64>>() / on_level.len() as f64;
-    let mut ranked: Vec<_> = on_level
-        .iter()
-        .map(|(l, p)| ((p - centroid).norm_squared().round() as i64, *l))
-        .collect();
-    ranked.sort();
-    ranked
-        .into_iter()
-        .take(count)
-        .map(|(_, l)| l.clone())
-        .collect()
-}
 
 /// A known control layout with its distinct targets.
 #[derive(Debug, Clone, PartialEq)]

@@ -1,5 +1,5 @@
-//! Image measurement: synthetic target images ([`render`]), blob detection ([`detect`]) and
-//! sub-pixel centres ([`fit`]), put together by [`measure`].
+//! Image measurement: blob detection ([`detect`]) and sub-pixel centres ([`fit`]), put together
+//! by [`measure`]. (Synthetic images to measure come from [`crate::render`].)
 //!
 //! # Centre methods
 //! - [`CentreMethod::Gravity`]: the paper's intensity-weighted centroid over the pixels above the
@@ -26,7 +26,6 @@ pub mod fit;
 pub mod grid;
 pub mod identify_images;
 pub mod layout;
-pub mod render;
 
 use crate::io::observations::{Observation, PointKind};
 use anyhow::{bail, Context, Result};

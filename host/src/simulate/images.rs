@@ -10,13 +10,12 @@
 //! on the plate. The distinct control targets of [`distinct_targets`] are drawn
 //! [`ImageSpec::distinct_scale`] times larger, for their identification by the known layout
 //! ([`crate::measure::layout`]). Images carry blur, noise, uneven illumination and a non-uniform background
-//! ([`crate::measure::render`]).
+//! ([`crate::render`]).
 
 use super::{field_stations, field_targets, true_camera, Scenario};
 use crate::io::observations::{write_observations, Observation, PointKind};
-use crate::measure::identify_images::CONTROL_SUFFIX;
-use crate::measure::layout::{distinct_targets, DISTINCT_COUNT};
-use crate::measure::render::{Background, BitDepth, Scene, Spot};
+use crate::render::{Background, BitDepth, Scene, Spot};
+use crate::target_field::{distinct_targets, CONTROL_SUFFIX, DISTINCT_COUNT};
 use anyhow::Result;
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::projector::{Projector, ProjectorRay};
@@ -48,7 +47,7 @@ pub struct ImageSpec {
     /// Size of the marker dot relative to the others.
     pub marker_scale: f64,
     /// Radius of the distinct control targets (those of
-    /// [`crate::measure::layout::distinct_targets`]) relative to the others.
+    /// [`crate::target_field::distinct_targets`]) relative to the others.
     pub distinct_scale: f64,
 }
 

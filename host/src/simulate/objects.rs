@@ -8,7 +8,7 @@
 //! origin, looking along −Z). Dots are drawn as circles centred on their true pixels.
 
 use super::{images::true_rig, Scenario};
-use crate::measure::render::{Background, Scene, Spot};
+use crate::render::{Background, Scene, Spot};
 use crate::system::SystemRig;
 use anyhow::Result;
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};

@@ -2,8 +2,8 @@
 //! paper's camera, projector centre and 20 × 22 pattern: render → measure → identify.
 
 use deltaz_host::measure::detect::GrayView;
-use deltaz_host::measure::render::{Background, Scene, Spot};
 use deltaz_host::measure::{measure, MeasureParams};
+use deltaz_host::render::{Background, Scene, Spot};
 use deltaz_host::simulate::images::true_rig;
 use deltaz_host::simulate::{true_camera, Scenario};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
