@@ -138,11 +138,14 @@ impl BackgroundField {
     }
 }
 
-/// [`BackgroundField::at`] along one row, all columns at once: per column the two tiles and the
-/// weight between them, computed once per image.
+/// [`BackgroundField::at`] along one row, all columns at once: the columns in spans between
+/// the same two tile centres, and each column's weight between them, computed once per image.
 struct RowInterpolation<'a> {
     field: &'a BackgroundField,
-    columns: Vec<(usize, usize, f64)>,
+    /// (left tile, right tile, columns) of each span, from the first column on.
+    spans: Vec<(usize, usize, usize)>,
+    /// Each column's weight of its span's right tile.
+    weights: Vec<f64>,
     tiles: Vec<f64>,
 }
 
@@ -150,16 +153,22 @@ impl<'a> RowInterpolation<'a> {
     /// For the columns `columns` (`row` then fills one value per column, from the first).
     fn new(field: &'a BackgroundField, columns: std::ops::RangeInclusive<usize>) -> Self {
         let t = field.tile as f64;
-        let columns = columns
-            .map(|c| {
-                let fx = ((c as f64 + 0.5) / t - 0.5).clamp(0.0, (field.nx - 1) as f64);
-                let x0 = fx.floor() as usize;
-                (x0, (x0 + 1).min(field.nx - 1), fx - x0 as f64)
-            })
-            .collect();
+        let mut spans: Vec<(usize, usize, usize)> = Vec::new();
+        let mut weights = Vec::with_capacity(columns.clone().count());
+        for c in columns {
+            let fx = ((c as f64 + 0.5) / t - 0.5).clamp(0.0, (field.nx - 1) as f64);
+            let x0 = fx.floor() as usize;
+            let x1 = (x0 + 1).min(field.nx - 1);
+            weights.push(fx - x0 as f64);
+            match spans.last_mut() {
+                Some((l, r, n)) if (*l, *r) == (x0, x1) => *n += 1,
+                _ => spans.push((x0, x1, 1)),
+            }
+        }
         Self {
             field,
-            columns,
+            spans,
+            weights,
             tiles: vec![0.0; field.nx],
         }
     }
@@ -174,8 +183,15 @@ impl<'a> RowInterpolation<'a> {
         for (x, tile) in self.tiles.iter_mut().enumerate() {
             *tile = (1.0 - ay) * f.medians[y0 * f.nx + x] + ay * f.medians[y1 * f.nx + x];
         }
-        for (o, &(x0, x1, ax)) in out.iter_mut().zip(&self.columns) {
-            *o = (1.0 - ax) * self.tiles[x0] + ax * self.tiles[x1];
+        let (mut out, mut weights) = (out, &self.weights[..]);
+        for &(x0, x1, n) in &self.spans {
+            let (a, b) = (self.tiles[x0], self.tiles[x1]);
+            let (o, rest) = out.split_at_mut(n);
+            let (w, more) = weights.split_at(n);
+            for (o, &ax) in o.iter_mut().zip(w) {
+                *o = (1.0 - ax) * a + ax * b;
+            }
+            (out, weights) = (rest, more);
         }
     }
 }
@@ -331,24 +347,37 @@ impl Sums {
         }
     }
 
-    fn add(&mut self, col: usize, row: usize, w: f64) {
-        let (c, r) = (col as f64, row as f64);
-        self.n += 1;
-        self.sc += c;
-        self.sr += r;
-        self.scc += c * c;
-        self.scr += c * r;
-        self.srr += r * r;
-        self.sw += w;
-        self.swc += w * c;
-        self.swr += w * r;
+    /// A run of pixels of one row from column `first` on, with their weights.
+    fn add_run(&mut self, first: usize, row: usize, weights: &[f64]) {
+        let (n, r) = (weights.len(), row as f64);
+        let (a, b) = (first as f64, (first + n - 1) as f64);
+        // Σ c and Σ c² over first..first + n, exact in f64.
+        let (sum_c, sum_cc) = (
+            (a + b) * n as f64 / 2.0,
+            (b * (b + 1.0) * (2.0 * b + 1.0) - (a - 1.0) * a * (2.0 * a - 1.0)) / 6.0,
+        );
+        self.n += n;
+        self.sc += sum_c;
+        self.sr += r * n as f64;
+        self.scc += sum_cc;
+        self.scr += r * sum_c;
+        self.srr += r * r * n as f64;
+        let (mut sw, mut swc, mut peak) = (0.0, 0.0, self.peak);
+        for (c, &w) in (first..).zip(weights) {
+            sw += w;
+            swc += w * c as f64;
+            peak = w.max(peak);
+        }
+        self.sw += sw;
+        self.swc += swc;
+        self.swr += r * sw;
         self.bbox = [
-            self.bbox[0].min(col),
+            self.bbox[0].min(first),
             self.bbox[1].min(row),
-            self.bbox[2].max(col),
+            self.bbox[2].max(first + n - 1),
             self.bbox[3].max(row),
         ];
-        self.peak = self.peak.max(w);
+        self.peak = peak;
     }
 
     fn merge(&mut self, o: &Sums) {
@@ -395,13 +424,99 @@ fn find(parent: &mut [usize], mut i: usize) -> usize {
     i
 }
 
+/// One row run of a component: columns `start..end` of its row, and the component's index.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Run {
+    start: usize,
+    end: usize,
+    blob: usize,
+}
+
+/// The components' label image, run-length encoded: each row's runs above the threshold in
+/// column order, each with the index of its component in [`Components::blobs`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunLabels {
+    first_row: usize,
+    /// Where each row's runs start in `runs`, and one entry past the last row.
+    row_start: Vec<usize>,
+    runs: Vec<Run>,
+}
+
+impl RunLabels {
+    /// The runs of a row (none outside the labelled rows).
+    fn row(&self, row: usize) -> &[Run] {
+        match row.checked_sub(self.first_row) {
+            Some(k) if k + 1 < self.row_start.len() => {
+                &self.runs[self.row_start[k]..self.row_start[k + 1]]
+            }
+            _ => &[],
+        }
+    }
+
+    /// The component at a pixel, if it is above the threshold.
+    pub fn at(&self, col: usize, row: usize) -> Option<usize> {
+        let runs = self.row(row);
+        let k = runs.partition_point(|run| run.end <= col);
+        runs.get(k).filter(|run| run.start <= col).map(|run| run.blob)
+    }
+
+    /// The pixels of components other than `own` grown by `grow` pixels (a square: their blur),
+    /// within `window` (`[c0, r0, c1, r1]`, inclusive), as row runs `[c0, r, c1, r]`.
+    pub fn foreign_runs(&self, own: usize, window: [usize; 4], grow: usize) -> Vec<[usize; 4]> {
+        let [c0, r0, c1, r1] = window;
+        let mut out = Vec::new();
+        let mut spans: Vec<(usize, usize)> = Vec::new();
+        for r in r0..=r1 {
+            spans.clear();
+            for rr in r.saturating_sub(grow)..=r + grow {
+                let runs = self.row(rr);
+                let first = runs.partition_point(|run| run.end + grow <= c0);
+                for run in runs[first..]
+                    .iter()
+                    .take_while(|run| run.start <= c1 + grow)
+                {
+                    if run.blob != own {
+                        spans.push((
+                            run.start.saturating_sub(grow).max(c0),
+                            (run.end - 1 + grow).min(c1),
+                        ));
+                    }
+                }
+            }
+            spans.sort_unstable();
+            let mut spans = spans.iter();
+            let Some(&(mut a, mut b)) = spans.next() else {
+                continue;
+            };
+            for &(s, e) in spans {
+                if s > b + 1 {
+                    out.push([a, r, b, r]);
+                    a = s;
+                }
+                b = b.max(e);
+            }
+            out.push([a, r, b, r]);
+        }
+        out
+    }
+}
+
+/// The components of an image (or window) and their label image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Components {
+    /// One blob per component, in the order their first pixels occur row by row.
+    pub blobs: Vec<Blob>,
+    /// Which component each pixel above the threshold belongs to.
+    pub labels: RunLabels,
+}
+
 /// The components of the pixels above background + k σ (8-connected), found row by row.
 pub fn components<P: Copy + Into<f64>>(
     img: &GrayView<P>,
     polarity: Polarity,
     background: &BackgroundField,
     threshold: f64,
-) -> Vec<Blob> {
+) -> Components {
     let all = [0, 0, img.width - 1, img.height - 1];
     components_in(img, polarity, background, threshold, all)
 }
@@ -413,64 +528,74 @@ pub fn components_in<P: Copy + Into<f64>>(
     background: &BackgroundField,
     threshold: f64,
     window: [usize; 4],
-) -> Vec<Blob> {
+) -> Components {
     let [c0, r0, c1, r1] = window;
+    let sign = match polarity {
+        Polarity::Bright => 1.0,
+        Polarity::Dark => -1.0,
+    };
     let mut parent: Vec<usize> = Vec::new();
     let mut sums: Vec<Sums> = Vec::new();
-    let mut prev: Vec<(usize, usize, usize)> = Vec::new();
-    let mut cur: Vec<(usize, usize, usize)> = Vec::new();
-    let mut weights = vec![0.0; img.width];
+    // Runs with their provisional labels (resolved to component indices at the end).
+    let mut runs: Vec<Run> = Vec::new();
+    let mut row_start = Vec::with_capacity(r1 + 2 - r0);
     let mut rows = RowInterpolation::new(background, c0..=c1);
-    let mut level = vec![0.0; c1 + 1 - c0];
+    let mut height = vec![0.0; c1 + 1 - c0];
+    let mut prev = 0..0;
     for r in r0..=r1 {
-        cur.clear();
-        rows.row(r, &mut level);
-        let mut c = c0;
-        while c <= c1 {
-            let w = img.signed(c, r, polarity) - level[c - c0];
-            if w <= threshold {
-                c += 1;
-                continue;
+        let this_row = runs.len();
+        row_start.push(this_row);
+        // The height above the background of every pixel of the row.
+        rows.row(r, &mut height);
+        let pixels = &img.pixels[r * img.width + c0..=r * img.width + c1];
+        for (h, &p) in height.iter_mut().zip(pixels) {
+            *h = sign * p.into() - *h;
+        }
+        let mut above = height.iter().map(|&h| h > threshold);
+        let mut c = 0;
+        // The previous row's runs that may still touch this row's next run.
+        let mut touching = prev.start;
+        while let Some(skip) = above.position(|a| a) {
+            let start = c + skip;
+            let end = start + 1 + above.by_ref().take_while(|&a| a).count();
+            c = end + 1;
+            let (first, last) = (c0 + start, c0 + end);
+            // Runs of the previous row touching [first, last) with 8-connectivity.
+            while touching < prev.end && runs[touching].end < first {
+                touching += 1;
             }
-            let start = c;
-            weights[c] = w;
-            c += 1;
-            while c <= c1 {
-                let w = img.signed(c, r, polarity) - level[c - c0];
-                if w <= threshold {
+            let mut label = None;
+            for k in touching..prev.end {
+                let run = runs[k];
+                if run.start > last {
                     break;
                 }
-                weights[c] = w;
-                c += 1;
-            }
-            // Runs of the previous row touching [start, c) with 8-connectivity.
-            let mut label = None;
-            for &(p0, p1, plabel) in &prev {
-                if p0 <= c && p1 >= start {
-                    let root = find(&mut parent, plabel);
-                    match label {
-                        None => label = Some(root),
-                        Some(l) if l != root => {
-                            let (keep, gone) = (l.min(root), l.max(root));
-                            parent[gone] = keep;
-                            label = Some(keep);
-                        }
-                        Some(_) => {}
+                let root = find(&mut parent, run.blob);
+                match label {
+                    None => label = Some(root),
+                    Some(l) if l != root => {
+                        let (keep, gone) = (l.min(root), l.max(root));
+                        parent[gone] = keep;
+                        label = Some(keep);
                     }
+                    Some(_) => {}
                 }
             }
             let label = label.unwrap_or_else(|| {
                 parent.push(parent.len());
-                sums.push(Sums::new(start, r));
+                sums.push(Sums::new(first, r));
                 parent.len() - 1
             });
-            for (col, &w) in weights.iter().enumerate().take(c).skip(start) {
-                sums[label].add(col, r, w);
-            }
-            cur.push((start, c, label));
+            sums[label].add_run(first, r, &height[start..end]);
+            runs.push(Run {
+                start: first,
+                end: last,
+                blob: label,
+            });
         }
-        std::mem::swap(&mut prev, &mut cur);
+        prev = this_row..runs.len();
     }
+    row_start.push(runs.len());
     for i in 0..parent.len() {
         let root = find(&mut parent, i);
         if root != i {
@@ -478,10 +603,25 @@ pub fn components_in<P: Copy + Into<f64>>(
             sums[root].merge(&moved);
         }
     }
-    (0..parent.len())
-        .filter(|&i| parent[i] == i)
-        .map(|i| sums[i].blob())
-        .collect()
+    let mut index = vec![0; parent.len()];
+    let mut blobs = Vec::new();
+    for i in 0..parent.len() {
+        if parent[i] == i {
+            index[i] = blobs.len();
+            blobs.push(sums[i].blob());
+        }
+    }
+    for run in &mut runs {
+        run.blob = index[find(&mut parent, run.blob)];
+    }
+    Components {
+        blobs,
+        labels: RunLabels {
+            first_row: r0,
+            row_start,
+            runs,
+        },
+    }
 }
 
 /// The shape tests of a component, in order: area, border, ellipse fill and axis ratio.
@@ -533,7 +673,8 @@ mod tests {
         };
         let bg = BackgroundField::estimate(&img, Polarity::Bright, 8);
         assert_eq!(bg.at(3.0, 3.0), 0.0);
-        let mut blobs = components(&img, Polarity::Bright, &bg, 1.0);
+        let found = components(&img, Polarity::Bright, &bg, 1.0);
+        let mut blobs = found.blobs.clone();
         blobs.sort_by_key(|b| b.area);
         assert_eq!(blobs.len(), 3);
         assert_eq!((blobs[0].area, blobs[0].gravity), (1, (1.0, 4.0)));
@@ -549,7 +690,109 @@ mod tests {
             dn: 1.0,
         };
         let bg = BackgroundField::estimate(&img, Polarity::Dark, 8);
-        assert_eq!(components(&img, Polarity::Dark, &bg, 1.0).len(), 3);
+        assert_eq!(components(&img, Polarity::Dark, &bg, 1.0).blobs.len(), 3);
+    }
+
+    /// The run-length labels against a flood fill of a random speckle image: the same
+    /// components, areas and, around each component, the same foreign pixels grown by 2; the
+    /// spans outside them cover the rest of the window once.
+    #[test]
+    fn run_labels_match_flood_fill() {
+        let (w, h) = (41, 29);
+        let mut state = 12345u32;
+        let px: Vec<u8> = (0..w * h)
+            .map(|_| {
+                state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
+                if (state >> 16) % 100 < 30 {
+                    9
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let img = GrayView {
+            width: w,
+            height: h,
+            pixels: &px[..],
+            dn: 1.0,
+        };
+        let bg = BackgroundField::estimate(&img, Polarity::Bright, 64);
+        let found = components(&img, Polarity::Bright, &bg, 1.0);
+        // Flood fill, 8-connected.
+        let mut flood = vec![usize::MAX; w * h];
+        let mut count = 0;
+        for start in 0..w * h {
+            if px[start] == 0 || flood[start] != usize::MAX {
+                continue;
+            }
+            let mut stack = vec![start];
+            flood[start] = count;
+            while let Some(k) = stack.pop() {
+                let (r, c) = ((k / w) as i64, (k % w) as i64);
+                for (dr, dc) in (-1..=1).flat_map(|dr| (-1..=1).map(move |dc| (dr, dc))) {
+                    let (rr, cc) = (r + dr, c + dc);
+                    if rr >= 0 && cc >= 0 && rr < h as i64 && cc < w as i64 {
+                        let j = rr as usize * w + cc as usize;
+                        if px[j] != 0 && flood[j] == usize::MAX {
+                            flood[j] = count;
+                            stack.push(j);
+                        }
+                    }
+                }
+            }
+            count += 1;
+        }
+        assert!(count > 20, "{count} components");
+        assert_eq!(found.blobs.len(), count);
+        let label = |c: usize, r: usize| found.labels.at(c, r);
+        // The same partition: flood label ↔ run label one to one, areas agree.
+        let mut to_run = vec![None; count];
+        for r in 0..h {
+            for c in 0..w {
+                let f = flood[r * w + c];
+                if f == usize::MAX {
+                    assert_eq!(label(c, r), None);
+                    continue;
+                }
+                let k = label(c, r).expect("labelled");
+                assert_eq!(*to_run[f].get_or_insert(k), k);
+            }
+        }
+        for (f, k) in to_run.iter().enumerate() {
+            let area = flood.iter().filter(|&&l| l == f).count();
+            assert_eq!(found.blobs[k.unwrap()].area, area);
+        }
+        for own in [0, count / 2, count - 1] {
+            let window = [3, 2, 30, 25];
+            let runs = found.labels.foreign_runs(own, window, 2);
+            let own_flood = to_run.iter().position(|&k| k == Some(own)).unwrap();
+            let mut seen = vec![0; w * h];
+            crate::measure::fit::for_each_span(window, &runs, |r, first, last| {
+                for c in first..=last {
+                    seen[r * w + c] += 1;
+                }
+            });
+            for r in window[1]..=window[3] {
+                for c in window[0]..=window[2] {
+                    let near_foreign = (r.saturating_sub(2)..=(r + 2).min(h - 1)).any(|rr| {
+                        (c.saturating_sub(2)..=(c + 2).min(w - 1)).any(|cc| {
+                            let f = flood[rr * w + cc];
+                            f != usize::MAX && f != own_flood
+                        })
+                    });
+                    let in_runs = runs
+                        .iter()
+                        .any(|b| b[1] == r && (b[0]..=b[2]).contains(&c));
+                    assert_eq!(in_runs, near_foreign, "pixel ({c}, {r}), own {own}");
+                    assert_eq!(seen[r * w + c], usize::from(!near_foreign));
+                }
+            }
+            assert_eq!(seen.iter().sum::<usize>(), {
+                let [c0, r0, c1, r1] = window;
+                (c1 - c0 + 1) * (r1 - r0 + 1)
+                    - runs.iter().map(|b| b[2] - b[0] + 1).sum::<usize>()
+            });
+        }
     }
 
     #[test]
