@@ -1,5 +1,6 @@
 //! Blob detection: a tiled background model, an adaptive threshold, connected components by runs
-//! (one row at a time, no label image) and shape tests.
+//! (one row at a time, bands of rows on all cores; the label image kept as runs, [`RunLabels`])
+//! and shape tests.
 //!
 //! Each component yields its area, bounding box, second moments and the intensity-weighted
 //! centroid (the paper's "gravity centre", section 6.2.1) with weights w = I − background over the
@@ -140,8 +141,11 @@ impl BackgroundField {
 
 /// [`BackgroundField::at`] along one row, all columns at once: the columns in spans between
 /// the same two tile centres, and each column's weight between them, computed once per image.
+#[derive(Clone)]
 struct RowInterpolation<'a> {
     field: &'a BackgroundField,
+    /// The first column.
+    first: usize,
     /// (left tile, right tile, columns) of each span, from the first column on.
     spans: Vec<(usize, usize, usize)>,
     /// Each column's weight of its span's right tile.
@@ -153,6 +157,7 @@ impl<'a> RowInterpolation<'a> {
     /// For the columns `columns` (`row` then fills one value per column, from the first).
     fn new(field: &'a BackgroundField, columns: std::ops::RangeInclusive<usize>) -> Self {
         let t = field.tile as f64;
+        let first = *columns.start();
         let mut spans: Vec<(usize, usize, usize)> = Vec::new();
         let mut weights = Vec::with_capacity(columns.clone().count());
         for c in columns {
@@ -167,6 +172,7 @@ impl<'a> RowInterpolation<'a> {
         }
         Self {
             field,
+            first,
             spans,
             weights,
             tiles: vec![0.0; field.nx],
@@ -457,7 +463,9 @@ impl RunLabels {
     pub fn at(&self, col: usize, row: usize) -> Option<usize> {
         let runs = self.row(row);
         let k = runs.partition_point(|run| run.end <= col);
-        runs.get(k).filter(|run| run.start <= col).map(|run| run.blob)
+        runs.get(k)
+            .filter(|run| run.start <= col)
+            .map(|run| run.blob)
     }
 
     /// The pixels of components other than `own` grown by `grow` pixels (a square: their blur),
@@ -510,15 +518,29 @@ pub struct Components {
     pub labels: RunLabels,
 }
 
-/// The components of the pixels above background + k σ (8-connected), found row by row.
-pub fn components<P: Copy + Into<f64>>(
+/// Rows of the image labelled together in [`components`] (bands in parallel).
+const BAND_ROWS: usize = 32;
+
+/// The components of the pixels above background + k σ (8-connected), found row by row: bands
+/// of [`BAND_ROWS`] rows on all cores, joined where their runs touch across the bands' edges.
+pub fn components<P: Copy + Into<f64> + Sync>(
     img: &GrayView<P>,
     polarity: Polarity,
     background: &BackgroundField,
     threshold: f64,
 ) -> Components {
-    let all = [0, 0, img.width - 1, img.height - 1];
-    components_in(img, polarity, background, threshold, all)
+    let bands = img.height.div_ceil(BAND_ROWS);
+    let columns = RowInterpolation::new(background, 0..=img.width - 1);
+    let labelled = crate::parallel::parallel_map(bands, |_: &mut (), k| {
+        let (r0, r1) = (k * BAND_ROWS, ((k + 1) * BAND_ROWS).min(img.height) - 1);
+        Labelling::of(img, polarity, columns.clone(), threshold, r0..=r1)
+    });
+    let mut bands = labelled.into_iter();
+    let mut all = bands.next().expect("an image has rows");
+    for band in bands {
+        all.append(band);
+    }
+    all.finish()
 }
 
 /// [`components`] within a window `[c0, r0, c1, r1]` (inclusive).
@@ -530,97 +552,173 @@ pub fn components_in<P: Copy + Into<f64>>(
     window: [usize; 4],
 ) -> Components {
     let [c0, r0, c1, r1] = window;
-    let sign = match polarity {
-        Polarity::Bright => 1.0,
-        Polarity::Dark => -1.0,
-    };
-    let mut parent: Vec<usize> = Vec::new();
-    let mut sums: Vec<Sums> = Vec::new();
-    // Runs with their provisional labels (resolved to component indices at the end).
-    let mut runs: Vec<Run> = Vec::new();
-    let mut row_start = Vec::with_capacity(r1 + 2 - r0);
-    let mut rows = RowInterpolation::new(background, c0..=c1);
-    let mut height = vec![0.0; c1 + 1 - c0];
-    let mut prev = 0..0;
-    for r in r0..=r1 {
-        let this_row = runs.len();
-        row_start.push(this_row);
-        // The height above the background of every pixel of the row.
-        rows.row(r, &mut height);
-        let pixels = &img.pixels[r * img.width + c0..=r * img.width + c1];
-        for (h, &p) in height.iter_mut().zip(pixels) {
-            *h = sign * p.into() - *h;
-        }
-        let mut above = height.iter().map(|&h| h > threshold);
-        let mut c = 0;
-        // The previous row's runs that may still touch this row's next run.
-        let mut touching = prev.start;
-        while let Some(skip) = above.position(|a| a) {
-            let start = c + skip;
-            let end = start + 1 + above.by_ref().take_while(|&a| a).count();
-            c = end + 1;
-            let (first, last) = (c0 + start, c0 + end);
-            // Runs of the previous row touching [first, last) with 8-connectivity.
-            while touching < prev.end && runs[touching].end < first {
-                touching += 1;
-            }
-            let mut label = None;
-            for k in touching..prev.end {
-                let run = runs[k];
-                if run.start > last {
-                    break;
-                }
-                let root = find(&mut parent, run.blob);
-                match label {
-                    None => label = Some(root),
-                    Some(l) if l != root => {
-                        let (keep, gone) = (l.min(root), l.max(root));
-                        parent[gone] = keep;
-                        label = Some(keep);
-                    }
-                    Some(_) => {}
-                }
-            }
-            let label = label.unwrap_or_else(|| {
-                parent.push(parent.len());
-                sums.push(Sums::new(first, r));
-                parent.len() - 1
-            });
-            sums[label].add_run(first, r, &height[start..end]);
-            runs.push(Run {
-                start: first,
-                end: last,
-                blob: label,
-            });
-        }
-        prev = this_row..runs.len();
-    }
-    row_start.push(runs.len());
-    for i in 0..parent.len() {
-        let root = find(&mut parent, i);
-        if root != i {
-            let moved = sums[i];
-            sums[root].merge(&moved);
-        }
-    }
-    let mut index = vec![0; parent.len()];
-    let mut blobs = Vec::new();
-    for i in 0..parent.len() {
-        if parent[i] == i {
-            index[i] = blobs.len();
-            blobs.push(sums[i].blob());
-        }
-    }
-    for run in &mut runs {
-        run.blob = index[find(&mut parent, run.blob)];
-    }
-    Components {
-        blobs,
-        labels: RunLabels {
+    let columns = RowInterpolation::new(background, c0..=c1);
+    Labelling::of(img, polarity, columns, threshold, r0..=r1).finish()
+}
+
+/// Row runs with provisional labels joined by union-find (a label's root is the smallest label
+/// of its component), and each label's sums.
+struct Labelling {
+    parent: Vec<usize>,
+    sums: Vec<Sums>,
+    /// Runs, `blob` being the provisional label.
+    runs: Vec<Run>,
+    first_row: usize,
+    row_start: Vec<usize>,
+}
+
+impl Labelling {
+    /// The runs of the rows `rows` within the columns of `background`, row by row.
+    fn of<P: Copy + Into<f64>>(
+        img: &GrayView<P>,
+        polarity: Polarity,
+        mut background: RowInterpolation<'_>,
+        threshold: f64,
+        rows: std::ops::RangeInclusive<usize>,
+    ) -> Self {
+        let (r0, r1) = (*rows.start(), *rows.end());
+        let (c0, c1) = (
+            background.first,
+            background.first + background.weights.len() - 1,
+        );
+        let sign = match polarity {
+            Polarity::Bright => 1.0,
+            Polarity::Dark => -1.0,
+        };
+        let mut labelling = Labelling {
+            parent: Vec::new(),
+            sums: Vec::new(),
+            runs: Vec::new(),
             first_row: r0,
-            row_start,
-            runs,
-        },
+            row_start: Vec::with_capacity(r1 + 2 - r0),
+        };
+        let mut height = vec![0.0; c1 + 1 - c0];
+        for r in rows {
+            labelling.row_start.push(labelling.runs.len());
+            // The height above the background of every pixel of the row.
+            background.row(r, &mut height);
+            let pixels = &img.pixels[r * img.width + c0..=r * img.width + c1];
+            for (h, &p) in height.iter_mut().zip(pixels) {
+                *h = sign * p.into() - *h;
+            }
+            let mut above = height.iter().map(|&h| h > threshold);
+            let mut c = 0;
+            while let Some(skip) = above.position(|a| a) {
+                let start = c + skip;
+                let end = start + 1 + above.by_ref().take_while(|&a| a).count();
+                c = end + 1;
+                labelling.add_run(c0 + start, r, &height[start..end]);
+            }
+        }
+        labelling.row_start.push(labelling.runs.len());
+        labelling
+    }
+
+    /// The runs of the `k`-th row (from the first).
+    fn row(&self, k: usize) -> std::ops::Range<usize> {
+        self.row_start[k]..self.row_start[k + 1]
+    }
+
+    /// A run of the current (last) row: joined to the runs of the row above that it touches
+    /// (8-connected), or a new label.
+    fn add_run(&mut self, first: usize, row: usize, heights: &[f64]) {
+        let last = first + heights.len();
+        let rows = self.row_start.len() - 1;
+        let above = if rows > 0 { self.row(rows - 1) } else { 0..0 };
+        // The runs above are in column order: skip those ending left of this one.
+        let skip = self.runs[above.clone()].partition_point(|run| run.end < first);
+        let mut label = None;
+        for k in above.start + skip..above.end {
+            let run = self.runs[k];
+            if run.start > last {
+                break;
+            }
+            label = Some(self.join(run.blob, label));
+        }
+        let label = label.unwrap_or_else(|| {
+            self.parent.push(self.parent.len());
+            self.sums.push(Sums::new(first, row));
+            self.parent.len() - 1
+        });
+        self.sums[label].add_run(first, row, heights);
+        self.runs.push(Run {
+            start: first,
+            end: last,
+            blob: label,
+        });
+    }
+
+    /// Join label `a` to the component of root `b` (if any): the smaller root stays.
+    fn join(&mut self, a: usize, b: Option<usize>) -> usize {
+        let root = find(&mut self.parent, a);
+        match b {
+            Some(b) if b != root => {
+                let (keep, gone) = (b.min(root), b.max(root));
+                self.parent[gone] = keep;
+                keep
+            }
+            _ => root,
+        }
+    }
+
+    /// The labelling of the rows just below appended, components touching across the edge
+    /// joined.
+    fn append(&mut self, below: Labelling) {
+        let offset = self.parent.len();
+        let rows = self.row_start.len() - 1;
+        debug_assert_eq!(below.first_row, self.first_row + rows);
+        let edge = self.row(rows - 1);
+        let run_offset = self.runs.len();
+        self.parent.extend(below.parent.iter().map(|&p| p + offset));
+        self.sums.extend(below.sums);
+        self.row_start.pop();
+        self.row_start
+            .extend(below.row_start.iter().map(|&k| k + run_offset));
+        self.runs.extend(below.runs.iter().map(|run| Run {
+            blob: run.blob + offset,
+            ..*run
+        }));
+        for k in self.row(rows) {
+            let run = self.runs[k];
+            for j in edge.clone() {
+                let up = self.runs[j];
+                if up.end >= run.start && up.start <= run.end {
+                    let root = find(&mut self.parent, run.blob);
+                    self.join(up.blob, Some(root));
+                }
+            }
+        }
+    }
+
+    /// The components (in the order of their first runs) and the resolved label image.
+    fn finish(mut self) -> Components {
+        let parent = &mut self.parent;
+        for i in 0..parent.len() {
+            let root = find(parent, i);
+            if root != i {
+                let moved = self.sums[i];
+                self.sums[root].merge(&moved);
+            }
+        }
+        let mut index = vec![0; parent.len()];
+        let mut blobs = Vec::new();
+        for i in 0..parent.len() {
+            if parent[i] == i {
+                index[i] = blobs.len();
+                blobs.push(self.sums[i].blob());
+            }
+        }
+        for run in &mut self.runs {
+            run.blob = index[find(parent, run.blob)];
+        }
+        Components {
+            blobs,
+            labels: RunLabels {
+                first_row: self.first_row,
+                row_start: self.row_start,
+                runs: self.runs,
+            },
+        }
     }
 }
 
@@ -693,12 +791,12 @@ mod tests {
         assert_eq!(components(&img, Polarity::Dark, &bg, 1.0).blobs.len(), 3);
     }
 
-    /// The run-length labels against a flood fill of a random speckle image: the same
-    /// components, areas and, around each component, the same foreign pixels grown by 2; the
-    /// spans outside them cover the rest of the window once.
+    /// The run-length labels against a flood fill of a random speckle image (three bands of
+    /// rows joined): the same components, areas and, around each component, the same foreign
+    /// pixels grown by 2; the spans outside them cover the rest of the window once.
     #[test]
     fn run_labels_match_flood_fill() {
-        let (w, h) = (41, 29);
+        let (w, h) = (41, 2 * BAND_ROWS + 11);
         let mut state = 12345u32;
         let px: Vec<u8> = (0..w * h)
             .map(|_| {
@@ -742,7 +840,7 @@ mod tests {
             }
             count += 1;
         }
-        assert!(count > 20, "{count} components");
+        assert!(count > 50, "{count} components");
         assert_eq!(found.blobs.len(), count);
         let label = |c: usize, r: usize| found.labels.at(c, r);
         // The same partition: flood label ↔ run label one to one, areas agree.
@@ -762,8 +860,12 @@ mod tests {
             let area = flood.iter().filter(|&&l| l == f).count();
             assert_eq!(found.blobs[k.unwrap()].area, area);
         }
-        for own in [0, count / 2, count - 1] {
-            let window = [3, 2, 30, 25];
+        let windows = [[3, 2, 30, 25], [5, BAND_ROWS - 9, 38, 2 * BAND_ROWS + 3]];
+        for (own, window) in [0, count / 2, count - 1]
+            .into_iter()
+            .zip(windows.iter().cycle())
+        {
+            let window = *window;
             let runs = found.labels.foreign_runs(own, window, 2);
             let own_flood = to_run.iter().position(|&k| k == Some(own)).unwrap();
             let mut seen = vec![0; w * h];
@@ -780,17 +882,14 @@ mod tests {
                             f != usize::MAX && f != own_flood
                         })
                     });
-                    let in_runs = runs
-                        .iter()
-                        .any(|b| b[1] == r && (b[0]..=b[2]).contains(&c));
+                    let in_runs = runs.iter().any(|b| b[1] == r && (b[0]..=b[2]).contains(&c));
                     assert_eq!(in_runs, near_foreign, "pixel ({c}, {r}), own {own}");
                     assert_eq!(seen[r * w + c], usize::from(!near_foreign));
                 }
             }
             assert_eq!(seen.iter().sum::<usize>(), {
                 let [c0, r0, c1, r1] = window;
-                (c1 - c0 + 1) * (r1 - r0 + 1)
-                    - runs.iter().map(|b| b[2] - b[0] + 1).sum::<usize>()
+                (c1 - c0 + 1) * (r1 - r0 + 1) - runs.iter().map(|b| b[2] - b[0] + 1).sum::<usize>()
             });
         }
     }

@@ -83,6 +83,24 @@ impl Scratch {
         self.v.push(v);
         self.weight.push(weight);
     }
+
+    /// The pixels `first..=last` of one image row (weight 1), positions relative to
+    /// (`xr`, `yr`).
+    fn push_span(
+        &mut self,
+        (first, last): (usize, usize),
+        row: usize,
+        (xr, yr): (f64, f64),
+        values: impl Iterator<Item = f64>,
+    ) {
+        let n = last + 1 - first;
+        self.x
+            .extend((first..=last).map(|c| (c as f64 - xr) as f32));
+        self.y
+            .extend(std::iter::repeat_n((row as f64 - yr) as f32, n));
+        self.v.extend(values.map(|v| v as f32));
+        self.weight.extend(std::iter::repeat_n(1.0, n));
+    }
 }
 
 /// e^x for x ≤ 0 (clamped at −87): 2ⁿ · e^f with f = x − n ln 2, |f| ≤ ln 2 / 2, by a degree-6
@@ -353,11 +371,8 @@ pub fn fit_template<P: Copy + Into<f64>>(
     let (xr, yr) = blob.gravity;
     scratch.clear();
     for_each_span(window, exclude, |r, first, last| {
-        let y = (r as f64 - yr) as f32;
-        for c in first..=last {
-            let v = img.signed(c, r, polarity);
-            scratch.push((c as f64 - xr) as f32, y, v as f32, 1.0);
-        }
+        let values = (first..=last).map(|c| img.signed(c, r, polarity));
+        scratch.push_span((first, last), r, (xr, yr), values);
     });
     let count = scratch.x.len();
     while !scratch.x.len().is_multiple_of(LANES) {
