@@ -1,4 +1,4 @@
-//! Detection timings (`deltaz bench-measure`): rendered dot grids (radius 3-8 px, blur σ 1 px,
+//! Detection timings (`deltaz bench-measure`): rendered dot grids (radius 3-10 px, blur σ 1 px,
 //! noise σ 2 DN, gradient background) measured by both centre methods and, as the peer, by
 //! OpenCV's `SimpleBlobDetector` in the same run, each with its error against the true centres.
 //! Speed is reported, never asserted.
@@ -46,9 +46,9 @@ pub fn dot_grid(width: usize, height: usize, cols: usize, rows: usize, radii: &[
     }
 }
 
-/// The benchmark's two images: 768 × 512 with 440 dots of radius 3-8 px and 12 MP with 4,000.
+/// The benchmark's two images: 768 × 512 with 440 dots of radius 3-10 px and 12 MP with 4,000.
 pub fn cases() -> [(&'static str, Scene); 2] {
-    let radii = [3.0, 4.0, 5.0, 6.0, 7.0, 8.0];
+    let radii = [3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0];
     [
         ("768 x 512, 440 dots", dot_grid(768, 512, 22, 20, &radii)),
         (
@@ -58,9 +58,9 @@ pub fn cases() -> [(&'static str, Scene); 2] {
     ]
 }
 
-/// RMS distance (px) of the true centres from their nearest found centre, and how many true
-/// centres have one within 0.5 px.
-pub fn centre_error(scene: &Scene, found: &[(f64, f64)]) -> (f64, usize) {
+/// Each true centre's distance (px) from its nearest found centre, `None` when none is within
+/// 0.5 px.
+pub fn centre_errors(scene: &Scene, found: &[(f64, f64)]) -> Vec<Option<f64>> {
     // Found centres by cell of 32 pixels, so that matching stays linear.
     let cell = 32.0;
     let mut cells: std::collections::HashMap<(i64, i64), Vec<(f64, f64)>> = Default::default();
@@ -70,21 +70,28 @@ pub fn centre_error(scene: &Scene, found: &[(f64, f64)]) -> (f64, usize) {
             .or_default()
             .push((c, r));
     }
-    let (mut sum, mut matched) = (0.0, 0);
-    for s in &scene.spots {
-        let (kc, kr) = ((s.col / cell).floor() as i64, (s.row / cell).floor() as i64);
-        let best = (-1..=1)
-            .flat_map(|dc| (-1..=1).map(move |dr| (kc + dc, kr + dr)))
-            .filter_map(|k| cells.get(&k))
-            .flatten()
-            .map(|&(c, r)| (c - s.col).hypot(r - s.row))
-            .fold(f64::INFINITY, f64::min);
-        if best < 0.5 {
-            sum += best * best;
-            matched += 1;
-        }
-    }
-    ((sum / matched.max(1) as f64).sqrt(), matched)
+    scene
+        .spots
+        .iter()
+        .map(|s| {
+            let (kc, kr) = ((s.col / cell).floor() as i64, (s.row / cell).floor() as i64);
+            let best = (-1..=1)
+                .flat_map(|dc| (-1..=1).map(move |dr| (kc + dc, kr + dr)))
+                .filter_map(|k| cells.get(&k))
+                .flatten()
+                .map(|&(c, r)| (c - s.col).hypot(r - s.row))
+                .fold(f64::INFINITY, f64::min);
+            (best < 0.5).then_some(best)
+        })
+        .collect()
+}
+
+/// The RMS of the errors that were found, and how many were.
+fn rms_of(errors: impl Iterator<Item = Option<f64>>) -> (f64, usize) {
+    let (sum, n) = errors
+        .flatten()
+        .fold((0.0, 0), |(sum, n), e| (sum + e * e, n + 1));
+    ((sum / n.max(1) as f64).sqrt(), n)
 }
 
 /// OpenCV's `SimpleBlobDetector` on the same image through `python3` (the script
@@ -132,6 +139,7 @@ pub fn run(repeats: usize) -> String {
         "| image | method | found | RMS error (px) | time (ms) | µs per dot | × OpenCV |\n|---|---|---|---|---|---|---|\n",
     );
     let mut notes = String::new();
+    let mut by_radius_notes = String::new();
     for (name, scene) in cases() {
         let img = scene.render().to_u8();
         let view = GrayView {
@@ -175,7 +183,27 @@ pub fn run(repeats: usize) -> String {
         }
         let peer_time = peer.as_ref().ok().map(|p| p.0);
         for (method, time, found) in rows {
-            let (rms, matched) = centre_error(&scene, &found);
+            let errors = centre_errors(&scene, &found);
+            let (rms, matched) = rms_of(errors.iter().copied());
+            let mut radii: Vec<f64> = scene.spots.iter().map(|s| s.semi_a).collect();
+            radii.sort_by(f64::total_cmp);
+            radii.dedup();
+            let by_radius: Vec<String> = radii
+                .iter()
+                .map(|&radius| {
+                    let of_radius = scene.spots.iter().zip(&errors);
+                    let (e, _) = rms_of(
+                        of_radius
+                            .filter(|(s, _)| s.semi_a == radius)
+                            .map(|(_, e)| *e),
+                    );
+                    format!("{radius}: {e:.4}")
+                })
+                .collect();
+            by_radius_notes.push_str(&format!(
+                "{name}, {method}: RMS error (px) by radius (px) {}\n",
+                by_radius.join(", ")
+            ));
             let ratio = peer_time.map_or("-".to_owned(), |t| format!("{:.2}", time / t));
             report.push_str(&format!(
                 "| {name} | {method} | {matched}/{} | {rms:.4} | {:.1} | {:.2} | {ratio} |\n",
@@ -185,6 +213,7 @@ pub fn run(repeats: usize) -> String {
             ));
         }
     }
+    report.push_str(&by_radius_notes);
     report.push_str(&notes);
     report
 }

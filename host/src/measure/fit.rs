@@ -16,8 +16,9 @@
 //! the machine: the window's pixels are kept in a reused [`Scratch`] (no allocation per blob) as
 //! f32 (the positions are relative to the gravity centre, a few pixels, and the residuals a few
 //! DN: f32 carries them to 10⁻⁶ px); every iteration is one pass that evaluates the template and
-//! its gradient on [`LANES`] pixels at a time, branch-free with a polynomial exp and erfc, into
-//! the normal equations (f64 only for the 10 × 10 solve); it starts from the blob's gravity
+//! its gradient on [`LANES`] pixels at a time (one AVX2 register where the processor has it),
+//! branch-free with a polynomial exp and erfc, into the normal equations (f64 only for the
+//! 10 × 10 solve); it starts from the blob's gravity
 //! centre and moments and stops when the centre moves less than [`CENTRE_TOLERANCE`].
 
 use super::detect::{Blob, GrayView, Polarity};
@@ -81,6 +82,24 @@ impl Scratch {
         self.y.push(y);
         self.v.push(v);
         self.weight.push(weight);
+    }
+
+    /// The pixels `first..=last` of one image row (weight 1), positions relative to
+    /// (`xr`, `yr`).
+    fn push_span(
+        &mut self,
+        (first, last): (usize, usize),
+        row: usize,
+        (xr, yr): (f64, f64),
+        values: impl Iterator<Item = f64>,
+    ) {
+        let n = last + 1 - first;
+        self.x
+            .extend((first..=last).map(|c| (c as f64 - xr) as f32));
+        self.y
+            .extend(std::iter::repeat_n((row as f64 - yr) as f32, n));
+        self.v.extend(values.map(|v| v as f32));
+        self.weight.extend(std::iter::repeat_n(1.0, n));
     }
 }
 
@@ -191,8 +210,28 @@ struct Normal {
     cost: f64,
 }
 
-/// One pass over the window, [`LANES`] pixels at a time (lane-wise sums, added up at the end).
+/// One pass over the window ([`normal_equations_lanes`]), in 256-bit registers where the
+/// processor has AVX2 (the same operations lane by lane: the same sums to the bit).
 fn normal_equations(p: &Params, s: &Scratch) -> Normal {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: a `target_feature` function only requires that the processor has the
+        // feature, which was detected just above.
+        return unsafe { normal_equations_avx2(p, s) };
+    }
+    normal_equations_lanes(p, s)
+}
+
+/// [`normal_equations_lanes`] compiled for AVX2: [`LANES`] f32 are one register.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn normal_equations_avx2(p: &Params, s: &Scratch) -> Normal {
+    normal_equations_lanes(p, s)
+}
+
+/// One pass over the window, [`LANES`] pixels at a time (lane-wise sums, added up at the end).
+#[inline(always)]
+fn normal_equations_lanes(p: &Params, s: &Scratch) -> Normal {
     let pf: [f32; N] = core::array::from_fn(|k| p[k] as f32);
     let mut jtj = [[0f32; LANES]; PAIRS];
     let mut jtr = [[0f32; LANES]; N];
@@ -214,16 +253,18 @@ fn normal_equations(p: &Params, s: &Scratch) -> Normal {
         for l in 0..LANES {
             cost[l] += r[l] * r[l];
         }
-        let mut pair = 0;
-        for a in 0..N {
+        // The upper triangle row by row: row a holds the pairs (a, a..N).
+        let mut rest = &mut jtj[..];
+        for (a, (ga, jtr)) in g.iter().zip(&mut jtr).enumerate() {
             for l in 0..LANES {
-                jtr[a][l] += g[a][l] * r[l];
+                jtr[l] += ga[l] * r[l];
             }
-            for b in a..N {
+            let (row, tail) = rest.split_at_mut(N - a);
+            rest = tail;
+            for (acc, gb) in row.iter_mut().zip(&g[a..]) {
                 for l in 0..LANES {
-                    jtj[pair][l] += g[a][l] * g[b][l];
+                    acc[l] += ga[l] * gb[l];
                 }
-                pair += 1;
             }
         }
     }
@@ -280,10 +321,37 @@ fn start_ellipse(s: &Scratch, blob: &Blob, background: f64) -> Option<([f64; 3],
     }
 }
 
+/// The pixels of `window` (`[c0, r0, c1, r1]`, inclusive) outside `exclude`, row by row as
+/// spans: `visit(row, first, last)`. `exclude` holds row runs `[c0, r, c1, r]` in row order and,
+/// within a row, in column order without overlaps (as [`super::detect::RunLabels::foreign_runs`]
+/// gives them).
+pub fn for_each_span(
+    window: [usize; 4],
+    exclude: &[[usize; 4]],
+    mut visit: impl FnMut(usize, usize, usize),
+) {
+    let [c0, r0, c1, r1] = window;
+    let mut runs = exclude.iter().peekable();
+    for r in r0..=r1 {
+        while runs.next_if(|run| run[1] < r).is_some() {}
+        let mut c = c0;
+        while let Some(run) = runs.next_if(|run| run[1] == r) {
+            let end = run[0].min(c1 + 1);
+            if end > c {
+                visit(r, c, end - 1);
+            }
+            c = c.max(run[2] + 1);
+        }
+        if c <= c1 {
+            visit(r, c, c1);
+        }
+    }
+}
+
 /// Fit the template around `blob`. The window is the blob's box grown by `margin` pixels;
-/// pixels inside any of `exclude` (other blobs' grown boxes) are left out. `background` is the
-/// local background level (signed by polarity). `None` when the fit does not converge to a
-/// sensible ellipse inside the window.
+/// pixels in `exclude` (row runs of other blobs, see [`for_each_span`]) are left out.
+/// `background` is the local background level (signed by polarity). `None` when the fit does
+/// not converge to a sensible ellipse inside the window.
 pub fn fit_template<P: Copy + Into<f64>>(
     img: &GrayView<P>,
     polarity: Polarity,
@@ -294,27 +362,18 @@ pub fn fit_template<P: Copy + Into<f64>>(
     scratch: &mut Scratch,
 ) -> Option<EllipseFit> {
     let [c0, r0, c1, r1] = blob.bbox;
-    let (wc0, wr0) = (c0.saturating_sub(margin), r0.saturating_sub(margin));
-    let wc1 = (c1 + margin).min(img.width - 1);
-    let wr1 = (r1 + margin).min(img.height - 1);
+    let window = [
+        c0.saturating_sub(margin),
+        r0.saturating_sub(margin),
+        (c1 + margin).min(img.width - 1),
+        (r1 + margin).min(img.height - 1),
+    ];
     let (xr, yr) = blob.gravity;
     scratch.clear();
-    for r in wr0..=wr1 {
-        for c in wc0..=wc1 {
-            let excluded = exclude
-                .iter()
-                .any(|b| c >= b[0] && c <= b[2] && r >= b[1] && r <= b[3]);
-            if !excluded {
-                let v = img.signed(c, r, polarity);
-                scratch.push(
-                    (c as f64 - xr) as f32,
-                    (r as f64 - yr) as f32,
-                    v as f32,
-                    1.0,
-                );
-            }
-        }
-    }
+    for_each_span(window, exclude, |r, first, last| {
+        let values = (first..=last).map(|c| img.signed(c, r, polarity));
+        scratch.push_span((first, last), r, (xr, yr), values);
+    });
     let count = scratch.x.len();
     while !scratch.x.len().is_multiple_of(LANES) {
         scratch.push(0.0, 0.0, 0.0, 0.0);

@@ -32,7 +32,7 @@ use anyhow::{bail, Context, Result};
 use deltaz_shared::identify::{Assignment, Identifier};
 use detect::{
     check_shape, components, components_in, noise_sigma, BackgroundField, Blob, DetectParams,
-    GrayView, Rejection,
+    GrayView, Rejection, RunLabels,
 };
 use nalgebra::{Matrix3, Vector2, Vector3};
 use std::path::Path;
@@ -133,18 +133,13 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
     let sigma = noise_sigma(img).max(0.29 * img.dn);
     let threshold = (d.k_sigma * sigma).max(d.min_contrast * img.dn);
     let mut background = BackgroundField::estimate(img, d.polarity, d.tile);
-    let mut blobs = components(img, d.polarity, &background, threshold);
-    if let Some(tile) = scale_aware_tile(&blobs, d, img.width, img.height) {
+    let mut found = components(img, d.polarity, &background, threshold);
+    if let Some(tile) = scale_aware_tile(&found.blobs, d, img.width, img.height) {
         background = BackgroundField::estimate(img, d.polarity, tile);
-        blobs = components(img, d.polarity, &background, threshold);
+        found = components(img, d.polarity, &background, threshold);
     }
-    let local = LocalMask {
-        img,
-        polarity: d.polarity,
-        background: &background,
-        threshold,
-    };
-    let split = split_merged(&local, d, &mut blobs);
+    let detect::Components { mut blobs, labels } = found;
+    let split = split_merged(img, d, &background, threshold, &labels, &mut blobs);
     // One blob's verdict: shape tests, then the centre (ungated).
     let centre = |scratch: &mut fit::Scratch,
                   i: usize|
@@ -165,11 +160,26 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
                 check: None,
             });
         }
-        let local = LocalMask {
-            threshold: split[i],
-            ..local
+        let window = grown_box(blob.bbox, params.margin + CHECK_MARGIN, img);
+        let exclude = match split[i] {
+            None => labels.foreign_runs(i, window, FOREIGN_GROW),
+            // A part split off at a higher threshold: the components at that threshold.
+            Some(higher) => {
+                let local = components_in(
+                    img,
+                    d.polarity,
+                    &background,
+                    higher,
+                    grown_box(window, FOREIGN_GROW, img),
+                );
+                let own = local
+                    .blobs
+                    .iter()
+                    .position(|b| b.area == blob.area && b.bbox == blob.bbox);
+                let own = own.unwrap_or(usize::MAX);
+                local.labels.foreign_runs(own, window, FOREIGN_GROW)
+            }
         };
-        let exclude = local.foreign_runs(blob, params.margin + CHECK_MARGIN);
         let f = fit::fit_template(
             img,
             d.polarity,
@@ -212,15 +222,16 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
 /// Split the components that fail the shape tests at a higher threshold, half their peak
 /// contrast: a target touching a fainter blob (a stain, a faint spot, a neighbour's halo) comes
 /// apart from it. When exactly one part passes the shape tests it replaces the component (the
-/// others stay as they were, to be rejected). Returns each blob's threshold (the split ones'
-/// own).
+/// others stay as they were, to be rejected). Returns the threshold of each split blob.
 fn split_merged<P: Copy + Into<f64>>(
-    mask: &LocalMask<'_, P>,
+    img: &GrayView<P>,
     d: &DetectParams,
+    background: &BackgroundField,
+    threshold: f64,
+    labels: &RunLabels,
     blobs: &mut [Blob],
-) -> Vec<f64> {
-    let (img, threshold) = (mask.img, mask.threshold);
-    let mut thresholds = vec![threshold; blobs.len()];
+) -> Vec<Option<f64>> {
+    let mut thresholds = vec![None; blobs.len()];
     for k in 0..blobs.len() {
         let blob = blobs[k];
         if check_shape(&blob, d, img.width, img.height) != Some(Rejection::Shape) {
@@ -228,21 +239,19 @@ fn split_merged<P: Copy + Into<f64>>(
         }
         let higher = (0.5 * blob.peak).max(threshold);
         // Parts of this component only, not of others reaching into its box.
-        let (label, own, [c0, r0, w, _]) = mask.labels(&blob, 0);
-        let parts: Vec<Blob> = components_in(img, d.polarity, mask.background, higher, blob.bbox)
+        let parts: Vec<Blob> = components_in(img, d.polarity, background, higher, blob.bbox)
+            .blobs
             .into_iter()
             .filter(|p| {
                 let (c, r) = (p.gravity.0.round() as usize, p.gravity.1.round() as usize);
-                own != 0
-                    && label[(r - r0) * w + (c - c0)] == own
-                    && check_shape(p, d, img.width, img.height).is_none()
+                labels.at(c, r) == Some(k) && check_shape(p, d, img.width, img.height).is_none()
             })
             .collect();
         // One part only: a target and a fainter blob. Two targets merged stay rejected (their
         // parts, cut at a higher threshold, would look smaller than the other targets).
         if let [part] = parts[..] {
             blobs[k] = part;
-            thresholds[k] = higher;
+            thresholds[k] = Some(higher);
         }
     }
     thresholds
@@ -275,115 +284,17 @@ pub fn scale_aware_tile(
     (tile > 2 * params.tile).then_some(tile.min(width.max(height)))
 }
 
-/// The threshold mask around a blob, to find the pixels of other components in its window.
-struct LocalMask<'a, P> {
-    img: &'a GrayView<'a, P>,
-    polarity: detect::Polarity,
-    background: &'a BackgroundField,
-    threshold: f64,
-}
+/// Pixels by which other components are grown to leave out their blur.
+const FOREIGN_GROW: usize = 2;
 
-impl<P: Copy + Into<f64>> LocalMask<'_, P> {
-    /// The components (8-connected) of the threshold mask in the blob's box grown by `pad`:
-    /// a label per pixel (0 below the threshold), the label of the blob's own component (the
-    /// one with its box and area; 0 if none) and the mask's [c0, r0, width, height].
-    fn labels(&self, blob: &Blob, pad: usize) -> (Vec<u32>, u32, [usize; 4]) {
-        let img = self.img;
-        let c0 = blob.bbox[0].saturating_sub(pad);
-        let r0 = blob.bbox[1].saturating_sub(pad);
-        let c1 = (blob.bbox[2] + pad).min(img.width - 1);
-        let r1 = (blob.bbox[3] + pad).min(img.height - 1);
-        let (w, h) = (c1 - c0 + 1, r1 - r0 + 1);
-        let mut label = vec![0u32; w * h];
-        for r in 0..h {
-            for c in 0..w {
-                let (cc, rr) = (c0 + c, r0 + r);
-                let v =
-                    img.signed(cc, rr, self.polarity) - self.background.at(cc as f64, rr as f64);
-                if v > self.threshold {
-                    label[r * w + c] = u32::MAX;
-                }
-            }
-        }
-        let mut own = 0;
-        let mut next = 0;
-        let mut stack = Vec::new();
-        for start in 0..w * h {
-            if label[start] != u32::MAX {
-                continue;
-            }
-            next += 1;
-            label[start] = next;
-            stack.push(start);
-            let (mut n, mut bbox) = (0usize, [usize::MAX, usize::MAX, 0, 0]);
-            while let Some(k) = stack.pop() {
-                let (r, c) = (k / w, k % w);
-                n += 1;
-                bbox = [
-                    bbox[0].min(c),
-                    bbox[1].min(r),
-                    bbox[2].max(c),
-                    bbox[3].max(r),
-                ];
-                for rr in r.saturating_sub(1)..=(r + 1).min(h - 1) {
-                    for cc in c.saturating_sub(1)..=(c + 1).min(w - 1) {
-                        let j = rr * w + cc;
-                        if label[j] == u32::MAX {
-                            label[j] = next;
-                            stack.push(j);
-                        }
-                    }
-                }
-            }
-            let global = [bbox[0] + c0, bbox[1] + r0, bbox[2] + c0, bbox[3] + r0];
-            if n == blob.area && global == blob.bbox {
-                own = next;
-            }
-        }
-        (label, own, [c0, r0, w, h])
-    }
-
-    /// The pixels of the fit window (the blob's box grown by `margin`) that belong to other
-    /// components, grown by 2 pixels (their blur), as row runs `[c0, r, c1, r]`. The blob's own
-    /// component is the window's component with its box and area; everything else above the
-    /// threshold is foreign.
-    fn foreign_runs(&self, blob: &Blob, margin: usize) -> Vec<[usize; 4]> {
-        const GROW: usize = 2;
-        // The mask covers the window plus GROW so that foreign pixels just outside still grow in.
-        let (label, own, [c0, r0, w, h]) = self.labels(blob, margin + GROW);
-        let foreign: Vec<bool> = label.iter().map(|&l| l != 0 && l != own).collect();
-        if !foreign.contains(&true) {
-            return Vec::new();
-        }
-        // Grow the foreign pixels by GROW (a square: along rows, then along columns).
-        let mut across = vec![false; w * h];
-        for r in 0..h {
-            for c in 0..w {
-                across[r * w + c] =
-                    (c.saturating_sub(GROW)..=(c + GROW).min(w - 1)).any(|cc| foreign[r * w + cc]);
-            }
-        }
-        let grown = |c: usize, r: usize| {
-            (r.saturating_sub(GROW)..=(r + GROW).min(h - 1)).any(|rr| across[rr * w + c])
-        };
-        // Row runs of the grown mask.
-        let mut runs = Vec::new();
-        for r in 0..h {
-            let mut start = None;
-            for c in 0..=w {
-                let hit = c < w && grown(c, r);
-                match (hit, start) {
-                    (true, None) => start = Some(c),
-                    (false, Some(s)) => {
-                        runs.push([c0 + s, r0 + r, c0 + c - 1, r0 + r]);
-                        start = None;
-                    }
-                    _ => {}
-                }
-            }
-        }
-        runs
-    }
+/// A box `[c0, r0, c1, r1]` grown by `by` pixels on every side, within the image.
+fn grown_box<P>(bbox: [usize; 4], by: usize, img: &GrayView<P>) -> [usize; 4] {
+    [
+        bbox[0].saturating_sub(by),
+        bbox[1].saturating_sub(by),
+        (bbox[2] + by).min(img.width - 1),
+        (bbox[3] + by).min(img.height - 1),
+    ]
 }
 
 /// Extra pixels around the fit window for the gravity check's background ring.
@@ -413,61 +324,77 @@ fn symmetric_gravity<P: Copy + Into<f64>>(
     margin: usize,
     exclude: &[[usize; 4]],
 ) -> Option<((f64, f64), f64)> {
-    let m = margin + CHECK_MARGIN;
-    let c0 = blob.bbox[0].saturating_sub(m);
-    let r0 = blob.bbox[1].saturating_sub(m);
-    let c1 = (blob.bbox[2] + m).min(img.width - 1);
-    let r1 = (blob.bbox[3] + m).min(img.height - 1);
+    let window = grown_box(blob.bbox, margin + CHECK_MARGIN, img);
     let grow = 2.0 * f.edge + 1.0;
-    let (sa, sb) = (f.semi_major + grow, f.semi_minor + grow);
+    let (ia, ib) = (1.0 / (f.semi_major + grow), 1.0 / (f.semi_minor + grow));
     let (ca, sn) = (f.angle.cos(), f.angle.sin());
-    let mut inside = Vec::new();
-    let mut plane = nalgebra::Matrix4::<f64>::zeros();
-    for r in r0..=r1 {
-        for c in c0..=c1 {
-            if exclude
-                .iter()
-                .any(|b| c >= b[0] && c <= b[2] && r >= b[1] && r <= b[3])
-            {
-                continue;
-            }
-            let (x, y) = (c as f64 - f.col, r as f64 - f.row);
-            let (u, v) = (ca * x + sn * y, -sn * x + ca * y);
-            let value = img.signed(c, r, polarity);
-            if (u / sa).powi(2) + (v / sb).powi(2) <= 1.0 {
-                inside.push((x, y, value));
+    // Positions relative to the fitted centre.
+    let (mut inside, mut outside) = (PixelSums::default(), PixelSums::default());
+    fit::for_each_span(window, exclude, |r, first, last| {
+        let y = r as f64 - f.row;
+        for c in first..=last {
+            let x = c as f64 - f.col;
+            let (u, v) = ((ca * x + sn * y) * ia, (-sn * x + ca * y) * ib);
+            let sums = if u * u + v * v <= 1.0 {
+                &mut inside
             } else {
-                let g = nalgebra::Vector4::new(1.0, x, y, value);
-                plane.syger(1.0, &g, &g, 1.0);
-            }
+                &mut outside
+            };
+            sums.add(x, y, img.signed(c, r, polarity));
         }
-    }
-    if plane[(0, 0)] < 12.0 {
+    });
+    let o = &outside;
+    if o.n < 12.0 {
         return None;
     }
-    let normal = plane.fixed_view::<3, 3>(0, 0).into_owned();
-    // `syger` fills the lower triangle only: the right-hand side is the last row.
-    let rhs = plane.fixed_view::<1, 3>(3, 0).transpose();
+    // The background plane b₀ + b₁ x + b₂ y fitted to the outside pixels.
+    let normal = nalgebra::Matrix3::new(o.n, o.x, o.y, o.x, o.xx, o.xy, o.y, o.xy, o.yy);
+    let rhs = Vector3::new(o.v, o.xv, o.yv);
     let b = normal.cholesky()?.solve(&rhs);
-    let n = plane[(0, 0)];
     // The residual variance of the plane fit: the noise of one pixel.
-    let var = ((plane[(3, 3)] - b.dot(&rhs)) / (n - 3.0)).max(0.0);
-    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    for &(x, y, value) in &inside {
-        let w = value - (b[0] + b[1] * x + b[2] * y);
-        sw += w;
-        sx += w * x;
-        sy += w * y;
-    }
+    let var = ((o.vv - b.dot(&rhs)) / (o.n - 3.0)).max(0.0);
+    // Σ w, Σ w x, Σ w y of the weights w = v − plane inside, from the sums.
+    let i = &inside;
+    let sw = i.v - (b[0] * i.n + b[1] * i.x + b[2] * i.y);
+    let swx = i.xv - (b[0] * i.x + b[1] * i.xx + b[2] * i.xy);
+    let swy = i.yv - (b[0] * i.y + b[1] * i.xy + b[2] * i.yy);
     if sw <= 0.0 {
         return None;
     }
-    let (gx, gy) = (sx / sw, sy / sw);
-    let spread: f64 = inside
-        .iter()
-        .map(|&(x, y, _)| (x - gx).powi(2) + (y - gy).powi(2))
-        .sum();
+    let (gx, gy) = (swx / sw, swy / sw);
+    // Σ |p − g|² over the inside pixels.
+    let spread = i.xx + i.yy - 2.0 * (gx * i.x + gy * i.y) + i.n * (gx * gx + gy * gy);
     Some(((f.col + gx, f.row + gy), (var * spread / 2.0).sqrt() / sw))
+}
+
+/// Sums of 1, x, y, v and their products over pixels (x, y) of value v.
+#[derive(Debug, Clone, Copy, Default)]
+struct PixelSums {
+    n: f64,
+    x: f64,
+    y: f64,
+    v: f64,
+    xx: f64,
+    xy: f64,
+    yy: f64,
+    xv: f64,
+    yv: f64,
+    vv: f64,
+}
+
+impl PixelSums {
+    fn add(&mut self, x: f64, y: f64, v: f64) {
+        self.n += 1.0;
+        self.x += x;
+        self.y += y;
+        self.v += v;
+        self.xx += x * x;
+        self.xy += x * y;
+        self.yy += y * y;
+        self.xv += x * v;
+        self.yv += y * v;
+        self.vv += v * v;
+    }
 }
 
 /// The fit gates, from the noise, each target's amplitude and size, and the spread of the
