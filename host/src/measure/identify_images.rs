@@ -366,15 +366,6 @@ pub fn folder_observations(
     for r in &found.reports {
         output.status(r);
     }
-    let mut found = found;
-    if dots.is_some() {
-        let dropped = drop_single_plane_rays(&mut found.observations);
-        if !dropped.is_empty() {
-            output.status(format!(
-                "left out, labelled on one plate only (the projector calibration needs two): rays {dropped:?}"
-            ));
-        }
-    }
     let path = observations_path(out);
     crate::io::observations::write_observations(&path, &found.observations)?;
     output.status(format!(
@@ -384,23 +375,4 @@ pub fn folder_observations(
         path.display()
     ));
     Ok(path)
-}
-
-/// Removes the dot observations of rays labelled in fewer than two images; returns their ids.
-pub fn drop_single_plane_rays(observations: &mut Vec<Observation>) -> Vec<String> {
-    let mut images =
-        std::collections::BTreeMap::<String, std::collections::BTreeSet<String>>::new();
-    for o in observations.iter().filter(|o| o.kind == PointKind::Dot) {
-        images
-            .entry(o.point.clone())
-            .or_default()
-            .insert(o.image.clone());
-    }
-    let single: Vec<String> = images
-        .into_iter()
-        .filter(|(_, i)| i.len() < 2)
-        .map(|(id, _)| id)
-        .collect();
-    observations.retain(|o| o.kind != PointKind::Dot || !single.contains(&o.point));
-    single
 }

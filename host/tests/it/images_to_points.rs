@@ -9,9 +9,7 @@ use deltaz_host::accuracy::{paper_experiment, Calibrated};
 use deltaz_host::bundle::{calibrate, CalibrationOptions};
 use deltaz_host::camera_calibration::{build_problem, camera_file};
 use deltaz_host::io::observations::{read_observations, Observation, PointKind};
-use deltaz_host::measure::identify_images::{
-    drop_single_plane_rays, identify_images, image_files, DotGrid,
-};
+use deltaz_host::measure::identify_images::{identify_images, image_files, DotGrid};
 use deltaz_host::measure::layout::Layout;
 use deltaz_host::measure::MeasureParams;
 use deltaz_host::plates::{plate_images, resect_images};
@@ -193,13 +191,6 @@ fn paper_scenario_from_images_to_points() {
     assert!(cfound as f64 >= 0.9 * cexpected as f64);
     assert!(dfound as f64 >= 0.95 * dexpected as f64);
 
-    // A ray whose dot was labelled on one plate only (merged with a target on the others)
-    // cannot be calibrated: left out.
-    let mut plate_obs = plate_obs;
-    let single = drop_single_plane_rays(&mut plate_obs.observations);
-    println!("rays labelled on one plate only: {single:?}");
-    assert!(single.len() <= 10);
-
     // Projector calibration (steps 4-7) and the paper's experiment on the 3rd image.
     let poses: Vec<_> = resect_images(
         Path::new("plate"),
@@ -216,6 +207,13 @@ fn paper_scenario_from_images_to_points() {
     // The effective image noise: the dots' centre error per coordinate.
     let sigma_px = drms / 2f64.sqrt();
     let projector = calibrate_projector(&grid, &inner, &plates, Model::Paper, sigma_px).unwrap();
+    // A ray whose dot was labelled on one plate only (merged with a target on the others) is
+    // determined through the centre.
+    println!(
+        "rays labelled on one plate only: {:?}",
+        projector.single_plane
+    );
+    assert!(projector.single_plane.len() <= 10);
     let content = SystemContent::new(grid, inner, plates[0].exterior, &projector);
     let cal = Calibrated {
         rig: content.rig().unwrap(),
