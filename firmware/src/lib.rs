@@ -4,6 +4,7 @@
 //! - [`device`]: requests in, responses out (the f32 rig, uploads, compute, stats);
 //! - [`server`]: the framing around it over any embedded-io serial port;
 //! - [`store`]: the power-fail safe two-slot calibration store over a `NorFlash`;
+//! - [`rx_ring`]: the received bytes a board's RX interrupt queues for the serve loop;
 //! - [`ram_flash`]: a NOR flash in RAM with power cuts, for the host and the tests;
 //! - [`smoke`]: the boot-time smoke computation and its line;
 //! - `logging`: the device's events to the `log` facade (feature `log`), or nothing;
@@ -16,6 +17,7 @@ mod logging;
 #[cfg(target_os = "none")]
 pub mod probe;
 pub mod ram_flash;
+pub mod rx_ring;
 pub mod server;
 pub mod smoke;
 pub mod store;

@@ -39,8 +39,9 @@ pub fn connect(args: &LinkArgs) -> Result<AnyDevice> {
     let transport: Box<dyn Transport> = match (&args.port, &args.qemu) {
         (Some(_), Some(_)) => bail!("--port and --qemu exclude each other"),
         (Some(port), None) => {
-            // A board's UART receive is polled between frames, not while it answers: one
-            // request in flight (QEMU's UART holds the line instead, so pipelining works there).
+            // A board queues what it receives while it answers in a 1 KiB ring (the firmware's
+            // `rx_ring`), less than a second 440-dot request: one request in flight (QEMU's
+            // UART holds the line instead, so pipelining works there).
             let serial = Serial::open(port, args.baud)?;
             return Ok(Device::new(Box::new(serial) as Box<dyn Transport>)
                 .with_timeout(args.timeout)

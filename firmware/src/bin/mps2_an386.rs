@@ -1,8 +1,9 @@
 //! Board shell for QEMU's `mps2-an386` (Cortex-M4F, CMSDK UART0 at 0x4000_4000).
 //!
 //! At boot it prints the smoke line (followed by a 0x00 so a host's frame reader drops it), then
-//! serves the protocol on UART0 until a `Reset` request, and resets. Between bytes it sleeps
-//! (WFI) until UART0's RX interrupt (IRQ 0) is pending.
+//! serves the protocol on UART0 until a `Reset` request, and resets. UART0's RX interrupt
+//! (IRQ 0) queues the received bytes in a ring (`rx_ring`), so the device receives the next
+//! frame while it answers the last; with the ring empty the serve loop sleeps (WFI).
 //!
 //! The calibration "flash" is the top 64 KiB of the 4 MiB code SRAM (0x003F_0000), outside every
 //! linker region (see `build.rs`): `-kernel` loads only the ELF's segments, so a system reset
@@ -17,13 +18,14 @@ mod board {
     use core::mem::MaybeUninit;
     use cortex_m::interrupt::InterruptNumber;
     use cortex_m::peripheral::{NVIC, SCB};
-    use cortex_m_rt::entry;
+    use cortex_m_rt::{entry, exception};
     use deltaz_firmware::device::MAX_CALIBRATION;
     use deltaz_firmware::probe::CortexProbe;
+    use deltaz_firmware::rx_ring::{RxRing, RX_RING};
     use deltaz_firmware::server::Server;
     use deltaz_firmware::smoke::{smoke_line, smoke_point, SMOKE_LINE};
     use deltaz_firmware::store::{Store, HEADER};
-    use embedded_io::{ErrorType, Read, Write};
+    use embedded_io::{ErrorType, Write};
     use embedded_storage::nor_flash::{
         check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash,
         NorFlashErrorKind, ReadNorFlash,
@@ -41,6 +43,8 @@ mod board {
     const BAUDDIV: usize = UART0 + 0x10;
     const TX_FULL: u32 = 1;
     const RX_FULL: u32 = 2;
+    /// STATE: the receiver overran (a byte lost; write 1 to clear).
+    const RX_OVERRUN: u32 = 8;
     /// CTRL: transmitter (bit 0), receiver (1) and RX interrupt (3) enabled.
     const TX_RX_RXINT: u32 = 0b1011;
     /// INTSTATUS/INTCLEAR: the RX interrupt.
@@ -78,52 +82,10 @@ mod board {
             // SAFETY: as in `init`; TX has room.
             unsafe { core::ptr::write_volatile(DATA as *mut u32, u32::from(byte)) };
         }
-
-        /// The next received byte, sleeping (WFI) until it comes: the RX interrupt is enabled
-        /// in the NVIC only inside the wait, with PRIMASK set, so it wakes the core and no
-        /// handler runs.
-        fn read_byte(&mut self) -> u8 {
-            cortex_m::interrupt::free(|_| {
-                while self.state() & RX_FULL == 0 {
-                    // SAFETY: PRIMASK is set (inside `free`): the interrupt can only end the
-                    // WFI; it is masked again before PRIMASK clears.
-                    unsafe { NVIC::unmask(Uart0Rx) };
-                    cortex_m::asm::wfi();
-                    NVIC::mask(Uart0Rx);
-                }
-                // SAFETY: as in `init`; RX holds a byte, reading DATA takes it; INTCLEAR drops
-                // the RX interrupt it raised.
-                let byte = unsafe {
-                    let byte = core::ptr::read_volatile(DATA as *const u32) as u8;
-                    core::ptr::write_volatile(INTCLEAR as *mut u32, RX_INT);
-                    byte
-                };
-                NVIC::unpend(Uart0Rx);
-                byte
-            })
-        }
     }
 
     impl ErrorType for Uart0 {
         type Error = core::convert::Infallible;
-    }
-
-    impl Read for Uart0 {
-        fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-            let Some((first, rest)) = buf.split_first_mut() else {
-                return Ok(0);
-            };
-            *first = self.read_byte();
-            let mut n = 1;
-            for slot in rest {
-                if self.state() & RX_FULL == 0 {
-                    break;
-                }
-                *slot = self.read_byte();
-                n += 1;
-            }
-            Ok(n)
-        }
     }
 
     impl Write for Uart0 {
@@ -134,6 +96,41 @@ mod board {
 
         fn flush(&mut self) -> Result<(), Self::Error> {
             Ok(())
+        }
+    }
+
+    /// The bytes UART0 receives, queued by its RX interrupt for the serve loop.
+    static RX: RxRing<RX_RING> = RxRing::new();
+
+    /// Every interrupt comes here (no device crate: cortex-m-rt's default vector table). IRQ 0,
+    /// UART0's RX, moves the received bytes into [`RX`] (an overrun after them is a gap); any
+    /// other (none is enabled) resets the board rather than hang.
+    #[exception]
+    unsafe fn DefaultHandler(irqn: i16) {
+        if irqn != 0 {
+            SCB::sys_reset();
+        }
+        let uart = Uart0;
+        loop {
+            let state = uart.state();
+            if state & (RX_FULL | RX_OVERRUN) == 0 {
+                break;
+            }
+            // SAFETY: as in `init`; the handler only reads DATA and clears receive flags, the
+            // serve loop only writes DATA (transmit) and reads STATE, so neither disturbs the
+            // other. Reading DATA takes the byte; writing 1 to STATE's overrun bit clears it;
+            // INTCLEAR drops the RX interrupt (a byte arriving after it raises it again, one
+            // arriving before is taken by the next turn of the loop).
+            unsafe {
+                if state & RX_FULL != 0 {
+                    RX.push(core::ptr::read_volatile(DATA as *const u32) as u8);
+                }
+                if state & RX_OVERRUN != 0 {
+                    core::ptr::write_volatile(STATE as *mut u32, RX_OVERRUN);
+                    RX.lose();
+                }
+                core::ptr::write_volatile(INTCLEAR as *mut u32, RX_INT);
+            }
         }
     }
 
@@ -211,7 +208,10 @@ mod board {
             if let Some(slot) = cortex_m::singleton!(: MaybeUninit<Server<RegionFlash, CortexProbe>> = MaybeUninit::uninit())
             {
                 let server = Server::boot_in(slot, store, probe);
-                let Ok(()) = server.serve(&mut uart);
+                // SAFETY: the handler (`DefaultHandler`) touches only the UART's receive side
+                // and `RX`, a lock-free queue made for a producer preempting its consumer.
+                unsafe { NVIC::unmask(Uart0Rx) };
+                let Ok(()) = server.serve(&RX, || RX.sleep_while_idle(), &mut uart);
             }
         }
         SCB::sys_reset()

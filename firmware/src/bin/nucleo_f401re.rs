@@ -4,17 +4,20 @@
 //! port) at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the
 //! calibration store in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000),
 //! SysTick at the core clock. The server (39.8 KB) is written in place into a static and the
-//! stack peaks at about 7.0 KB (measured under QEMU with the same code).
+//! stack peaks at about 6.9 KB (measured under QEMU with the same code).
 //!
 //! - **Watchdog**: the independent watchdog (IWDG, its own ~32 kHz LSI) resets the board when
-//!   it is not fed for about 5 s ([`WATCHDOG_RELOAD`]); it is fed while the board waits for a
-//!   byte (woken by SysTick at least every 0.2 s) and in every flash wait. The longest
+//!   it is not fed for about 5 s ([`WATCHDOG_RELOAD`]); it is fed whenever the serve loop has
+//!   emptied the receive ring (woken by SysTick at least every 0.2 s) and in every flash wait. The longest
 //!   operation, erasing the 128 KiB sector 5 (2 s at most), stalls the CPU (the code runs from
 //!   the same flash bank), so the timeout covers it even with the LSI at its fastest (47 kHz:
 //!   3.4 s).
-//! - **Idle**: the board sleeps (WFI) until USART2 has a byte or SysTick wraps, instead of
-//!   polling; USART2's RX interrupt is enabled in the NVIC only inside that wait, with PRIMASK
-//!   set, so it wakes the core but no handler runs.
+//! - **Reception**: USART2's RX interrupt queues each byte in a ring (`rx_ring`, its size
+//!   from the link budget), so the board receives while it computes and answers instead of
+//!   overrunning the one-byte data register; a full ring or a UART error is a gap, and the
+//!   frame it hits is answered `Overrun` (a resync).
+//! - **Idle**: with the ring empty the board sleeps (WFI) until the RX interrupt or SysTick,
+//!   instead of polling.
 //!
 //! Build: `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release
 //! --features nucleo-f401re --bin nucleo_f401re`; flash and run with probe-rs:
@@ -26,6 +29,7 @@ use core::mem::MaybeUninit;
 use cortex_m::peripheral::{NVIC, SCB};
 use cortex_m_rt::{entry, exception};
 use deltaz_firmware::probe::CortexProbe;
+use deltaz_firmware::rx_ring::{RxRing, RX_RING};
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::Store;
 use embedded_storage::nor_flash::{
@@ -33,7 +37,7 @@ use embedded_storage::nor_flash::{
     ReadNorFlash,
 };
 use panic_halt as _;
-use stm32f4::stm32f401 as pac;
+use stm32f4::stm32f401::{self as pac, interrupt};
 
 /// Sector 4 (offset from the flash base).
 const SLOT_A: (u32, u32) = (0x1_0000, 0x2_0000);
@@ -51,7 +55,7 @@ const SECTORS: [u32; 9] = [
 const WATCHDOG_RELOAD: u16 = 2500;
 
 /// The independent watchdog, started: a handle that feeds it (the board's two users, the
-/// serial port and the flash, each hold one).
+/// serve loop's idle wait and the flash, each hold one).
 #[derive(Clone, Copy)]
 struct Watchdog;
 
@@ -108,7 +112,7 @@ fn clocks(rcc: &pac::RCC, flash: &pac::FLASH) {
 }
 
 /// USART2 on PA2 (TX) and PA3 (RX, pulled up), alternate function 7: 2 Mbaud 8N1 from APB1's
-/// 42 MHz (USARTDIV 1.3125 = 1 + 5/16, exact), the RX interrupt flag raised for the idle wait.
+/// 42 MHz (USARTDIV 1.3125 = 1 + 5/16, exact), its interrupt on a received byte or an overrun.
 fn usart2(rcc: &pac::RCC, gpioa: &pac::GPIOA, usart: &pac::USART2) {
     rcc.ahb1enr().modify(|_, w| w.gpioaen().set_bit());
     rcc.apb1enr().modify(|_, w| w.usart2en().set_bit());
@@ -132,52 +136,13 @@ fn usart2(rcc: &pac::RCC, gpioa: &pac::GPIOA, usart: &pac::USART2) {
     });
 }
 
-/// USART2 as an embedded-io serial port, the watchdog fed while it waits.
+/// USART2's transmit side as an embedded-io serial port (its receive side is the interrupt's).
 struct Vcp {
     usart: pac::USART2,
-    dog: Watchdog,
-}
-
-impl Vcp {
-    /// The next received byte, sleeping until it comes (see the module docs). Overrun and
-    /// framing errors lose bytes; the framing layer resynchronises at the next delimiter.
-    fn read_byte(&mut self) -> u8 {
-        loop {
-            self.dog.feed();
-            let byte = cortex_m::interrupt::free(|_| {
-                if self.usart.sr().read().rxne().bit_is_clear() {
-                    // SAFETY: PRIMASK is set (inside `free`), so the unmasked interrupt can
-                    // only wake the WFI, never run a handler; it is masked again below before
-                    // PRIMASK clears.
-                    unsafe { NVIC::unmask(pac::Interrupt::USART2) };
-                    cortex_m::asm::wfi();
-                    NVIC::mask(pac::Interrupt::USART2);
-                }
-                // Reading SR then DR clears RXNE and the error flags.
-                let ready = self.usart.sr().read().rxne().bit_is_set();
-                let byte = ready.then(|| self.usart.dr().read().dr().bits() as u8);
-                NVIC::unpend(pac::Interrupt::USART2);
-                byte
-            });
-            if let Some(byte) = byte {
-                return byte;
-            }
-        }
-    }
 }
 
 impl embedded_io::ErrorType for Vcp {
     type Error = core::convert::Infallible;
-}
-
-impl embedded_io::Read for Vcp {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        let Some(first) = buf.first_mut() else {
-            return Ok(0);
-        };
-        *first = self.read_byte();
-        Ok(1)
-    }
 }
 
 impl embedded_io::Write for Vcp {
@@ -313,6 +278,32 @@ impl NorFlash for Flash {
     }
 }
 
+/// The bytes USART2 receives, queued by its RX interrupt for the serve loop.
+static RX: RxRing<RX_RING> = RxRing::new();
+
+/// USART2's RX interrupt (RXNE, or an overrun): the byte into [`RX`]; an overrun, a framing
+/// error or noise on the line is a gap (the byte with a framing error or noise is dropped).
+#[interrupt]
+fn USART2() {
+    // SAFETY: the handler only reads SR and DR (the receive side: the SR-then-DR read clears
+    // RXNE and the error flags); the serve loop's `Vcp` only writes DR and reads SR (the
+    // transmit side), so neither disturbs the other.
+    let usart = unsafe { pac::USART2::steal() };
+    let sr = usart.sr().read();
+    if sr.rxne().bit_is_set() || sr.ore().bit_is_set() {
+        let byte = usart.dr().read().dr().bits() as u8;
+        if sr.fe().bit_is_set() || sr.nf().bit_is_set() {
+            RX.lose();
+        } else {
+            RX.push(byte);
+        }
+        // The byte lost to an overrun came after the one just read.
+        if sr.ore().bit_is_set() {
+            RX.lose();
+        }
+    }
+}
+
 /// SysTick wraps every 0.2 s (2²⁴ cycles at 84 MHz) and wakes the idle wait to feed the
 /// watchdog; nothing else to do.
 #[exception]
@@ -340,10 +331,14 @@ fn main() -> ! {
             if let Some(slot) = cortex_m::singleton!(: MaybeUninit<Server<Flash, CortexProbe>> = MaybeUninit::uninit())
             {
                 let server = Server::boot_in(slot, store, probe);
-                let Ok(()) = server.serve(&mut Vcp {
-                    usart: dp.USART2,
-                    dog,
-                });
+                // SAFETY: the handler (`USART2`) touches only the receive side and `RX`, a
+                // lock-free queue made for a producer preempting its consumer.
+                unsafe { NVIC::unmask(pac::Interrupt::USART2) };
+                let idle = || {
+                    dog.feed();
+                    RX.sleep_while_idle();
+                };
+                let Ok(()) = server.serve(&RX, idle, &mut Vcp { usart: dp.USART2 });
             }
         }
     }

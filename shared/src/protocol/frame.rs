@@ -28,6 +28,9 @@ pub enum WireError {
     UnknownMessage,
     /// The message does not fit the sender's buffer.
     BufferFull,
+    /// Bytes of the frame were lost in reception (the receiver's queue was full or its UART
+    /// overran).
+    Overrun,
 }
 
 impl core::fmt::Display for WireError {
@@ -40,6 +43,7 @@ impl core::fmt::Display for WireError {
             WireError::Malformed => "the CRC matches but the bytes are not a message",
             WireError::UnknownMessage => "the CRC matches but the message kind is unknown",
             WireError::BufferFull => "the message does not fit the sender's buffer",
+            WireError::Overrun => "bytes of the frame were lost in reception",
         })
     }
 }
