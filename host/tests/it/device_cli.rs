@@ -46,7 +46,7 @@ fn points(path: &Path) -> HashMap<(String, String), [f64; 3]> {
 fn info_and_link_errors() {
     let info = ok(&["device", "info"]);
     assert!(
-        info.contains("protocol 3") && info.contains("no calibration"),
+        info.contains("protocol 4") && info.contains("no calibration"),
         "{info}"
     );
     let out = deltaz(&["device", "info", "--json"]);

@@ -47,7 +47,7 @@ pub use frame::{decode_request, decode_response, encode_frame, WireError};
 use serde::{Deserialize, Serialize};
 
 /// The protocol version reported in [`DeviceInfo`]; a change of the wire format increments it.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 /// The most centroids in one `Compute` request.
 pub const MAX_BATCH: usize = 512;
 /// The most projector rays a device's calibration holds (its [`DeviceInfo::ray_capacity`]),

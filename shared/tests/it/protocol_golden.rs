@@ -124,10 +124,10 @@ fn responses() -> Vec<Response> {
             seq: i as u32 + 1,
             body,
         })
-        .chain([Response {
+        .chain([WireError::BadCrc, WireError::Overrun].map(|e| Response {
             seq: 0,
-            body: ResponseBody::Error(ErrorCode::Frame(WireError::BadCrc)),
-        }])
+            body: ResponseBody::Error(ErrorCode::Frame(e)),
+        }))
         .collect()
 }
 
@@ -147,10 +147,10 @@ const REQUEST_FRAMES: [&str; 8] = [
 ];
 
 /// The frames of [`responses`], in order.
-const RESPONSE_FRAMES: [&str; 10] = [
-    // Protocol 3, then (after the calibration) boot_error Some(IdentifierCapacity): 01 0a.
-    "02 01 01 02 01 37 03 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
-     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 0a 09 b5 98 0e 00",
+const RESPONSE_FRAMES: [&str; 11] = [
+    // Protocol 4, then (after the calibration) boot_error Some(IdentifierCapacity): 01 0a.
+    "02 01 01 02 01 37 04 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
+     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 0a 5c f4 ed 24 00",
     "09 02 01 ac 02 69 ef 33 66 00",
     "07 03 02 83 08 26 e7 02 2e 00",
     "11 04 03 ef 9b af cd f8 ac d1 91 01 02 d0 af 85 68 00",
@@ -162,6 +162,9 @@ const RESPONSE_FRAMES: [&str; 10] = [
     "08 09 08 2a 02 96 03 01 01 05 fe ff ff 03 01 04 05 95 03 01 01 01 01 01 01 01 01 06 f3 06 \
      79 b3 70 00",
     "01 02 07 06 02 b5 a8 05 ca 00",
+    // Protocol 4: bytes lost in reception: seq 0, Error, Frame, WireError 7 (`00 07 00 07`), its
+    // CRC-32 (zlib) 0xba6f5c3a.
+    "01 02 07 06 07 3a 5c 6f ba 00",
 ];
 
 fn bytes(hex: &str) -> Vec<u8> {
