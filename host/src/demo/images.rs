@@ -11,7 +11,8 @@
 //!    protocol) with the identification parameters for the objects' depth.
 //! 4. Scan the object frames through it ([`crate::scan`]): measure, identify, intersect.
 //! 5. The accuracy on each object against its truth beside its floor: the image noise (the
-//!    calibration's estimated σ of the dots) and the calibration's covariance, its share common
+//!    calibration's estimated σ of the dots, with the wire's centroid quantisation that the
+//!    device computes from) and the calibration's covariance, its share common
 //!    to all points carried through the fits ([`crate::object_accuracy`]).
 //! 6. Write `cloud.ply` (every object point, with its frame), `system.json`, `report.md`,
 //!    `report.json` and the plots: the field targets' residuals (`residual_vectors.svg`,
@@ -37,6 +38,7 @@ use crate::system::SystemFile;
 use anyhow::{Context, Result};
 use deltaz_calib::system_adjustment::Frame;
 use deltaz_shared::identify::DepthRange;
+use deltaz_shared::protocol::centroid_fraction_bits;
 use deltaz_shared::rig::Method;
 use nalgebra::DMatrix;
 use serde_json::json;
@@ -108,6 +110,12 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     let objects: BTreeMap<String, Object> = test_objects(depth).into_iter().collect();
     let core = model.core_covariance.clone();
     let mut kinds: BTreeMap<&str, Scanned> = BTreeMap::new();
+    // The device computes from each dot quantised to q = 2^-bits px (a uniform error, variance
+    // q²/12 per coordinate), which adds to the image noise's share of the floor.
+    let grid = cal.rig.grid();
+    let q = 0.5_f64.powi(i32::from(centroid_fraction_bits(grid.width, grid.height)));
+    let s2 = model.sigma_dots_px * model.sigma_dots_px;
+    let quantised = (s2 + q * q / 12.0) / s2;
     let (mut wrong, mut device_vs_host, mut centroid2, mut dots) = (0, 0.0_f64, 0.0, 0);
     let mut cloud = Vec::new();
     let mut cloud_frames = Vec::new();
@@ -126,9 +134,10 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
                 wrong += 1;
                 continue;
             };
-            let shares = model
-                .reconstruct_shares(cal.rig.grid(), dot, Method::ClosestApproach, Frame::Camera)
+            let mut shares = model
+                .reconstruct_shares(grid, dot, Method::ClosestApproach, Frame::Camera)
                 .map_err(|e| anyhow::anyhow!("frame {} ray {}: {e}", f.label, dot.id))?;
+            shares.image *= quantised;
             device_vs_host = device_vs_host.max((p.point - shares.point).norm());
             centroid2 += (dot.col - c).powi(2) + (dot.row - r).powi(2);
             dots += 1;
@@ -165,7 +174,6 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     steps.inc(1);
 
     steps.set_message("plots and report");
-    let grid = cal.rig.grid();
     let (histogram, _) = plots::residual_histogram(&cal.residuals)?;
     let plot_files = [
         (
@@ -361,8 +369,9 @@ fn report_markdown(r: &serde_json::Value) -> Result<String> {
          ## Test objects scanned through the device (in process)\n\n\
          {} frames, {} points ({:.0} frames/s), {} wrong identifications; centroid error against \
          the truth {:.4} px per axis; device (f32, fixed-point wire) vs host f64 at most {:.4} mm.\n\
-         Each figure beside its floor (image noise at the estimated dot σ, and the calibration's \
-         covariance, its common share carried through the fits):\n\n\
+         Each figure beside its floor (image noise at the estimated dot σ with the wire's \
+         centroid quantisation, and the calibration's covariance, its common share carried \
+         through the fits):\n\n\
          | object (3 frames each) | figure |\n|---|---|\n\
          | sphere, radius 300 mm: radius error ± σ per frame | {} mm |\n\
          | sphere: form error (RMS distance from the fitted sphere) | {} |\n\

@@ -52,7 +52,7 @@ fn info_and_link_errors() {
     let out = deltaz(&["device", "info", "--json"]);
     assert!(out.status.success());
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
-    assert_eq!(json["protocol"], 3);
+    assert_eq!(json["protocol"], 4);
     assert!(json["boot_error"].is_null(), "{json}");
     assert_eq!(json["ray_capacity"], 512);
     assert!(json["calibration"].is_null(), "{json}");
