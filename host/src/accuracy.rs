@@ -243,12 +243,19 @@ fn rms_sigma(variances: &[Vector3<f64>]) -> Vector3<f64> {
     (variances.iter().sum::<Vector3<f64>>() / n).map(f64::sqrt)
 }
 
-/// The camera calibrated on a simulation's target field (bundle adjustment, no snooping).
-pub fn bundle_camera(sim: &Simulation) -> Result<crate::bundle::Calibration> {
-    let options = crate::bundle::CalibrationOptions {
+/// The bundle's options for simulated data: every observation kept (no data snooping).
+pub fn no_snooping() -> crate::bundle::CalibrationOptions {
+    crate::bundle::CalibrationOptions {
         snooping: false,
         ..Default::default()
-    };
+    }
+}
+
+/// The camera calibrated on a simulation's target field (bundle adjustment with `options`).
+pub fn bundle_camera(
+    sim: &Simulation,
+    options: &crate::bundle::CalibrationOptions,
+) -> Result<crate::bundle::Calibration> {
     let init = &sim.camera_init;
     let problem = crate::camera_calibration::build_problem(
         std::path::Path::new("camera_obs.csv"),
@@ -256,15 +263,15 @@ pub fn bundle_camera(sim: &Simulation) -> Result<crate::bundle::Calibration> {
         &init.inner(),
         &sim.camera_obs,
         &sim.camera_control,
-        &options,
+        options,
     )?;
-    Ok(crate::bundle::calibrate(problem, &options)?)
+    Ok(crate::bundle::calibrate(problem, options)?)
 }
 
 /// [`bundle_camera`]'s inner orientation and the prior (free parameters and their covariance)
 /// for the system.
 pub fn calibrate_camera(sim: &Simulation) -> Result<(InnerOrientation<f64>, CameraPrior)> {
-    let cal = bundle_camera(sim)?;
+    let cal = bundle_camera(sim, &no_snooping())?;
     Ok((
         cal.problem.inner,
         crate::camera_calibration::camera_prior(&cal),

@@ -1145,17 +1145,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             ] {
                 let progress = output.progress(format!("calibrating {}", scenario.name));
                 let sim = simulate::simulate(&scenario, 1);
-                let options = bundle::CalibrationOptions::default();
                 let start = std::time::Instant::now();
-                let problem = deltaz_host::camera_calibration::build_problem(
-                    std::path::Path::new("simulated"),
-                    &sim.camera_init.grid(),
-                    &sim.camera_init.inner(),
-                    &sim.camera_obs,
-                    &sim.camera_control,
-                    &options,
+                let cal = deltaz_host::accuracy::bundle_camera(
+                    &sim,
+                    &bundle::CalibrationOptions::default(),
                 )?;
-                let cal = bundle::calibrate(problem, &options)?;
                 let seconds = start.elapsed().as_secs_f64();
                 progress.finish_and_clear();
                 let file = deltaz_host::camera_calibration::camera_file(&cal, &sim.camera_obs);

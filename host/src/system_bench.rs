@@ -4,7 +4,7 @@
 //! camera's bundle adjustment (the start) and the joint adjustment of field images, plates and
 //! projector (with the plates' resection) are timed apart.
 
-use crate::accuracy::{adjust_simulation_joint, bundle_camera};
+use crate::accuracy::{adjust_simulation_joint, bundle_camera, no_snooping};
 use crate::simulate::{simulate, Scenario};
 use anyhow::Result;
 use std::time::Instant;
@@ -19,7 +19,7 @@ pub fn run(images: u32, targets: u32) -> Result<(String, Vec<serde_json::Value>)
     for scenario in [Scenario::paper(), large] {
         let sim = simulate(&scenario, 1);
         let start = Instant::now();
-        let camera = bundle_camera(&sim)?;
+        let camera = bundle_camera(&sim, &no_snooping())?;
         let bundle = start.elapsed().as_secs_f64();
         let start = Instant::now();
         let (adj, _) = adjust_simulation_joint(&sim, &camera, false, None)?;

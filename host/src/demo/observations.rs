@@ -11,9 +11,11 @@
 //!    `residual_histogram.svg`, `plate_errors.svg` and `torso_errors.svg`.
 
 use super::{bar, slashed, v3, write_results};
-use crate::accuracy::{against_truth, calibrate_simulation, paper_experiment, truth_figures};
-use crate::bundle::{calibrate, CalibrationOptions};
-use crate::camera_calibration::{build_problem, camera_file};
+use crate::accuracy::{
+    against_truth, bundle_camera, calibrate_simulation, paper_experiment, truth_figures,
+};
+use crate::bundle::CalibrationOptions;
+use crate::camera_calibration::camera_file;
 use crate::compare::sample_std_about;
 use crate::link::Device;
 use crate::plots;
@@ -177,17 +179,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     steps.inc(1);
 
     steps.set_message("camera bundle adjustment");
-    let options = CalibrationOptions::default();
-    let problem = build_problem(
-        Path::new("simulated camera_obs.csv"),
-        &sim.camera_init.grid(),
-        &sim.camera_init.inner(),
-        &sim.camera_obs,
-        &sim.camera_control,
-        &options,
-    )?;
-    let bundle =
-        calibrate(problem, &options).map_err(|e| anyhow::anyhow!("bundle adjustment: {e}"))?;
+    let bundle = bundle_camera(&sim, &CalibrationOptions::default())?;
     let camera_file = camera_file(&bundle, &sim.camera_obs);
     let inner = camera_file.inner();
     steps.inc(1);

@@ -5,7 +5,7 @@
 
 use deltaz_calib::system_adjustment::{Frame, SystemAdjustment};
 use deltaz_host::accuracy::{
-    adjust_simulation, adjust_simulation_joint, bundle_camera, calibrate_camera,
+    adjust_simulation, adjust_simulation_joint, bundle_camera, calibrate_camera, no_snooping,
     system_against_truth,
 };
 use deltaz_host::camera_calibration::camera_prior;
@@ -165,7 +165,7 @@ fn monte_carlo(scenario: &Scenario, held_out: usize, seeds: u64) -> ([Honesty; 2
     let mut agreement = Agreement::default();
     for seed in 0..seeds {
         let sim = simulate(scenario, 1000 + seed);
-        let cal = bundle_camera(&sim).unwrap();
+        let cal = bundle_camera(&sim, &no_snooping()).unwrap();
         let prior = Some(camera_prior(&cal));
         let (seq, left_out) =
             adjust_simulation(&sim, &cal.problem.inner, prior, false, Some(held_out)).unwrap();
