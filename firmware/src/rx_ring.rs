@@ -14,15 +14,17 @@
 //! request (5.08 B per point) and a 4,413-byte answer (10.03 B per point): the answer takes
 //! 22 ms on the line, and its compute (about 249,000 instructions, 3 ms at 84 MHz) is
 //! interleaved with it (the answer is streamed out as it is computed). Meanwhile the server's
-//! receive buffer holds the request being answered (it is read in place), so every byte that
-//! arrives waits here: 600 B during the compute alone, 2,235 B (the whole next request) with
-//! two requests in flight, 4,413 B (the line's rate for the whole answer) with more. Without
-//! the ring the device's RAM (static and stack peak) is 46,680 B of the 48 KB budget, so the
-//! ring gets 1 KiB ([`RX_RING`], 47,716 B in all): it absorbs the compute stretch, a request of
-//! up to 1,023 bytes (about 200 labelled dots, or an `Info`/`Stats`) sent while a frame is
-//! answered, and interrupt latency. A second 440-dot request in flight would need a 2,304-byte
-//! ring (about 48,990 B in all, over the budget), so over a real serial port the host keeps one
-//! request in flight.
+//! receive buffer holds the request being answered (it is read in place), and the bytes that
+//! arrive wait here: 600 B during the compute alone, 2,235 B (the whole next request) with two
+//! requests in flight. So before each COBS block of the answer the serve loop moves what the
+//! ring holds of the next request into the receive buffer behind the one answered
+//! ([`crate::server::Server::serve`]: 3,648 B less that request, 1,412 B behind a 440-dot one):
+//! the ring holds only the rest, 826 B at line rate (`tests/tests/it/full_duplex.rs`). Without
+//! the ring the device's RAM (static and stack peak) is 46,656 B of the 48 KB budget, so the
+//! ring gets 1 KiB ([`RX_RING`], 47,692 B in all): a second 440-dot request in flight with 197 B
+//! to spare, and interrupt latency. A host keeps at most two requests, of
+//! [`crate::server::IN_FLIGHT_BYTES`] together, in flight to a board (a third would wait whole
+//! here while the second is answered).
 
 use core::sync::atomic::{AtomicBool, AtomicU8, AtomicUsize, Ordering};
 
@@ -111,6 +113,17 @@ impl<const N: usize> RxRing<N> {
         let next = if tail + 1 == N { 0 } else { tail + 1 };
         self.tail.store(next, Ordering::Release);
         Some(Received::Byte(byte))
+    }
+
+    /// The bytes queued now (a reading either side may take: the other may change it at once).
+    pub fn queued(&self) -> usize {
+        let head = self.head.load(Ordering::Acquire);
+        let tail = self.tail.load(Ordering::Acquire);
+        if head >= tail {
+            head - tail
+        } else {
+            head + N - tail
+        }
     }
 
     /// Whether the consumer has nothing to take (no byte, no gap): the serve loop may sleep.

@@ -10,6 +10,7 @@ use crate::ply::{encode_with, CloudInfo, Encoding, RIG_FRAME};
 use crate::reconstruct::ReconstructedPoint;
 use crate::system::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
+use deltaz_firmware::server::IN_FLIGHT_BYTES;
 use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::{CalibrationSummary, PointStatus, MAX_BATCH, MAX_RAYS};
 use deltaz_shared::rig::Method;
@@ -39,13 +40,14 @@ pub fn connect(args: &LinkArgs) -> Result<AnyDevice> {
     let transport: Box<dyn Transport> = match (&args.port, &args.qemu) {
         (Some(_), Some(_)) => bail!("--port and --qemu exclude each other"),
         (Some(port), None) => {
-            // A board queues what it receives while it answers in a 1 KiB ring (the firmware's
-            // `rx_ring`), less than a second 440-dot request: one request in flight (QEMU's
-            // UART holds the line instead, so pipelining works there).
+            // A board receives the next request while it answers one (behind it in its receive
+            // buffer, the rest in its RX ring; nothing holds the line): two requests in flight
+            // within what it holds, `IN_FLIGHT_BYTES` (two 440-dot frames, not two of 512).
             let serial = Serial::open(port, args.baud)?;
             return Ok(Device::new(Box::new(serial) as Box<dyn Transport>)
                 .with_timeout(args.timeout)
-                .with_window(1));
+                .with_window(2)
+                .with_in_flight_bytes(IN_FLIGHT_BYTES));
         }
         (None, Some(elf)) => {
             if !elf.exists() {

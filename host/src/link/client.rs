@@ -140,6 +140,8 @@ pub struct Device<T> {
     seq: u32,
     timeout: Duration,
     window: usize,
+    /// The most request bytes in flight (delimiters included) when more than one is.
+    in_flight_bytes: usize,
     drained: bool,
     pending: Vec<u8>,
     calibration: Option<CalibrationSummary>,
@@ -188,6 +190,7 @@ impl<T: Transport> Device<T> {
             seq: fresh_seq(),
             timeout: DEFAULT_TIMEOUT,
             window: DEFAULT_WINDOW,
+            in_flight_bytes: usize::MAX,
             drained: false,
             pending: Vec::new(),
             calibration: None,
@@ -200,6 +203,13 @@ impl<T: Transport> Device<T> {
     /// The same client keeping up to `window` requests in flight in a stream (at least 1).
     pub fn with_window(mut self, window: usize) -> Self {
         self.window = window.max(1);
+        self
+    }
+
+    /// The same client keeping a second request in flight only while the requests in flight
+    /// come to at most `bytes` (delimiters included): what a device receives while it answers.
+    pub fn with_in_flight_bytes(mut self, bytes: usize) -> Self {
+        self.in_flight_bytes = bytes;
         self
     }
 
@@ -510,18 +520,29 @@ impl<T: Transport> Device<T> {
         let mut flight: Vec<InFlight> = Vec::new();
         let mut order = 0u64;
         let grace = GRACE.min(self.timeout);
+        // The next request, encoded, waiting for room in the window.
+        let mut next: Option<(usize, u32, Vec<u8>)> = None;
         loop {
             while flight.len() < self.window {
-                let Some((index, body)) = requests.next() else {
+                if next.is_none() {
+                    let Some((index, body)) = requests.next() else {
+                        break;
+                    };
+                    let seq = self.next_seq();
+                    // A leading delimiter ends any partial frame the device holds.
+                    let mut frame = vec![0u8; MAX_FRAME + 1];
+                    let len = encode_frame(&Request { seq, body }, &mut frame[1..])
+                        .map_err(|e| DeviceError::Device(ErrorCode::Frame(e)))?
+                        .len();
+                    frame.truncate(len + 1);
+                    next = Some((index, seq, frame));
+                }
+                let in_flight: usize = flight.iter().map(|f| f.frame.len()).sum();
+                let Some((index, seq, frame)) = next.take_if(|(_, _, frame)| {
+                    flight.is_empty() || in_flight + frame.len() <= self.in_flight_bytes
+                }) else {
                     break;
                 };
-                let seq = self.next_seq();
-                // A leading delimiter ends any partial frame the device holds.
-                let mut frame = vec![0u8; MAX_FRAME + 1];
-                let len = encode_frame(&Request { seq, body }, &mut frame[1..])
-                    .map_err(|e| DeviceError::Device(ErrorCode::Frame(e)))?
-                    .len();
-                frame.truncate(len + 1);
                 self.send(&frame)?;
                 order += 1;
                 flight.push(InFlight {

@@ -1,6 +1,7 @@
 //! `deltaz device ...` through the binary: the in-process device, clear errors, and a stream whose
 //! points agree with `deltaz reconstruct` on the same system.
 
+use deltaz_shared::protocol::PROTOCOL_VERSION;
 use std::collections::HashMap;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -52,7 +53,7 @@ fn info_and_link_errors() {
     let out = deltaz(&["device", "info", "--json"]);
     assert!(out.status.success());
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
-    assert_eq!(json["protocol"], 4);
+    assert_eq!(json["protocol"], PROTOCOL_VERSION);
     assert!(json["boot_error"].is_null(), "{json}");
     assert_eq!(json["ray_capacity"], 512);
     assert!(json["calibration"].is_null(), "{json}");

@@ -1,9 +1,11 @@
 //! The typed client against the firmware's logic in-process.
 
 use deltaz_firmware::smoke::{paper_rig, smoke_pixel, RAY};
-use deltaz_host::link::{Device, DeviceError};
+use deltaz_host::link::{Device, DeviceError, InProcess, Transport};
 use deltaz_shared::protocol::{Centroid, PointStatus};
 use deltaz_shared::rig::Method;
+use std::collections::VecDeque;
+use std::io;
 use std::time::Duration;
 
 #[test]
@@ -55,4 +57,59 @@ fn upload_compute_reset_and_errors() {
         device.compute(&[(RAY, 1e6, 0.0)]),
         Err(DeviceError::Centroid(0))
     ));
+}
+
+/// The in-process device behind a line that holds each request until the client reads: the
+/// requests the client has sent and not yet had answered are in flight.
+struct Held {
+    inner: InProcess,
+    sent: VecDeque<Vec<u8>>,
+    /// The most requests, and request bytes, in flight at once.
+    most: (usize, usize),
+}
+
+impl Transport for Held {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.sent.push_back(bytes.to_vec());
+        let bytes = self.sent.iter().map(Vec::len).sum();
+        self.most = (self.most.0.max(self.sent.len()), self.most.1.max(bytes));
+        Ok(())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        if let Some(request) = self.sent.pop_front() {
+            self.inner.send(&request)?;
+        }
+        self.inner.recv(buf, timeout)
+    }
+}
+
+/// Past the first, a request goes out only while the requests in flight fit the byte budget
+/// (`Device::with_in_flight_bytes`, what a board receives while it answers).
+#[test]
+fn requests_in_flight_stay_within_the_byte_budget() {
+    let (col, row) = smoke_pixel().unwrap();
+    let frames = vec![vec![(RAY, col, row); 300]; 6];
+    let run = |window: usize, budget: usize| {
+        let held = Held {
+            inner: InProcess::new(),
+            sent: VecDeque::new(),
+            most: (0, 0),
+        };
+        let mut device = Device::new(held)
+            .with_timeout(Duration::from_millis(20))
+            .with_window(window)
+            .with_in_flight_bytes(budget);
+        device.upload(&paper_rig(), 1).unwrap();
+        let points = device.compute_frames(&frames).unwrap();
+        assert!(points.iter().flatten().all(Result::is_ok));
+        device.into_transport().most
+    };
+    // One request at a time: its length.
+    let (one, len) = run(1, usize::MAX);
+    assert_eq!(one, 1);
+    assert!(len > 300 * 5, "{len}");
+    assert_eq!(run(4, usize::MAX), (4, 4 * len));
+    assert_eq!(run(4, 2 * len), (2, 2 * len));
+    assert_eq!(run(4, 2 * len - 1), (1, len));
 }

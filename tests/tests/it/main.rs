@@ -4,6 +4,7 @@ mod device_accuracy;
 mod device_identify;
 mod device_qemu;
 mod firmware_smoke;
+mod full_duplex;
 mod link_budget;
 mod link_noise;
 mod upload_power_cut;
