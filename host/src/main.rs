@@ -576,8 +576,6 @@ impl Drop for ObservationsGuard {
     }
 }
 
-/// Runs the command; any error prints as one `error: ...` chain (never a backtrace, whatever
-/// RUST_BACKTRACE says) and exits with 1, like a bad command line.
 /// The default action for SIGPIPE, as Unix tools have: `deltaz ... | head` then ends quietly
 /// when the reader closes the pipe, where Rust's runtime (which ignores SIGPIPE) would panic in
 /// `println!` with "failed printing to stdout".
@@ -590,6 +588,8 @@ fn default_sigpipe() {
     }
 }
 
+/// Runs the command; any error prints as one `error: ...` chain (never a backtrace, whatever
+/// RUST_BACKTRACE says) and exits with 1, like a bad command line.
 fn main() -> ExitCode {
     #[cfg(unix)]
     default_sigpipe();

@@ -249,9 +249,11 @@ impl NorFlash for Flash {
         for (sector, start) in SECTORS.iter().enumerate() {
             if (from..to).contains(start) {
                 self.operate(|f| {
+                    // `modify`, not `write`: a write starts from CR's reset value, whose LOCK
+                    // bit would lock the register again before STRT.
                     // SAFETY: `sector` < 8 fits SNB (4 bits); x32 parallelism needs
                     // 2.7-3.6 V (the Nucleo runs at 3.3 V).
-                    f.cr().write(|w| {
+                    f.cr().modify(|_, w| {
                         unsafe { w.ser().set_bit().snb().bits(sector as u8) }
                             .psize()
                             .psize32()
@@ -268,7 +270,8 @@ impl NorFlash for Flash {
         for (i, &byte) in bytes.iter().enumerate() {
             let at = (FLASH_BASE + offset as usize + i) as *mut u8;
             self.operate(|f| {
-                f.cr().write(|w| w.pg().set_bit().psize().psize8());
+                // `modify`: a `write` would set LOCK too (CR's reset value).
+                f.cr().modify(|_, w| w.pg().set_bit().psize().psize8());
                 // SAFETY: `check_write` kept the address inside the flash; with PG set, a byte
                 // write to it programs that byte (an erased one: the store writes each once).
                 unsafe { core::ptr::write_volatile(at, byte) };
