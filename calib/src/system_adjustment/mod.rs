@@ -946,11 +946,12 @@ impl SystemModel {
         method: Method,
         frame: Frame,
     ) -> Result<SystemPoint, SystemError> {
-        let shares = self.reconstruct_shares(grid, dot, method, frame)?;
+        let l = self.linearise(grid, dot, method, frame)?;
+        let cov = &l.jacobian * self.ray_parameter_covariance(l.ray) * l.jacobian.transpose();
         Ok(SystemPoint {
-            point: shares.point,
-            image: shares.image,
-            calibration: shares.calibration(&self.core_covariance),
+            point: l.point,
+            image: l.image,
+            calibration: Matrix3::from_fn(|a, b| cov[(a, b)]),
         })
     }
 
@@ -963,6 +964,40 @@ impl SystemModel {
         method: Method,
         frame: Frame,
     ) -> Result<PointShares, SystemError> {
+        let l = self.linearise(grid, dot, method, frame)?;
+        let ray = &self.rays[l.ray];
+        // Split the ray's parameters r = A δc + u (see [`PointShares`]).
+        let core = self.core_covariance.nrows();
+        // The pseudo-inverse: a core parameter held fixed (a zero row and column, and zero
+        // cross covariance) splits off nothing.
+        let c = &self.core_covariance;
+        let c_inv = c
+            .clone()
+            .pseudo_inverse(c.amax() * 1e-14)
+            .map_err(|_| SystemError::Singular)?;
+        let a = &ray.cross * c_inv;
+        let own = &ray.covariance - &a * ray.cross.transpose();
+        let j_core = l.jacobian.columns(0, core);
+        let j_ray = l.jacobian.columns(core, ray.params.len());
+        let common = j_core + j_ray * a;
+        let ray_cov = j_ray * own * j_ray.transpose();
+        Ok(PointShares {
+            point: l.point,
+            image: l.image,
+            ray: Matrix3::from_fn(|a, b| ray_cov[(a, b)]),
+            common,
+        })
+    }
+
+    /// A dot's point in `frame`, its image-noise covariance, and its Jacobian with respect to
+    /// the core parameters and then its ray's (central differences).
+    fn linearise(
+        &self,
+        grid: &PixelGrid<f64>,
+        dot: &DotObservation,
+        method: Method,
+        frame: Frame,
+    ) -> Result<Linearised, SystemError> {
         let datum = match (frame, &self.datum) {
             (Frame::Plate, None) => {
                 return Err(SystemError::Geometry(
@@ -1044,26 +1079,21 @@ impl SystemModel {
             let d = (point(&up, dot.col, dot.row)? - point(&down, dot.col, dot.row)?) / (2.0 * h);
             jac.set_column(i, &d);
         }
-        // Split the ray's parameters r = A δc + u (see [`PointShares`]).
-        let core = self.core_covariance.nrows();
-        // The pseudo-inverse: a core parameter held fixed (a zero row and column, and zero
-        // cross covariance) splits off nothing.
-        let c = &self.core_covariance;
-        let c_inv = c
-            .clone()
-            .pseudo_inverse(c.amax() * 1e-14)
-            .map_err(|_| SystemError::Singular)?;
-        let a = &ray.cross * c_inv;
-        let own = &ray.covariance - &a * ray.cross.transpose();
-        let j_core = jac.columns(0, core);
-        let j_ray = jac.columns(core, ray.params.len());
-        let common = j_core + j_ray * a;
-        let ray_cov = j_ray * own * j_ray.transpose();
-        Ok(PointShares {
+        Ok(Linearised {
             point: x,
             image,
-            ray: Matrix3::from_fn(|a, b| ray_cov[(a, b)]),
-            common,
+            jacobian: jac,
+            ray: index,
         })
     }
+}
+
+/// [`SystemModel::linearise`]'s result.
+struct Linearised {
+    point: Vector3<f64>,
+    image: Matrix3<f64>,
+    /// 3 × (core + the ray's parameters).
+    jacobian: DMatrix<f64>,
+    /// The ray's index in [`SystemModel::rays`].
+    ray: usize,
 }

@@ -223,3 +223,42 @@ fn written_objects_read_back() {
     let instrument = Instrument { rig, model: None };
     error_at_floor("torso from files", &instrument, &matched);
 }
+
+/// A point's calibration covariance from the whole parameter covariance (`reconstruct`) equals
+/// the sum of its shares (`reconstruct_shares`: the core's common share through the pseudo-
+/// inverse split, and the ray's own), on the paper geometry's calibration from images.
+#[test]
+fn point_covariance_equals_its_shares() {
+    use deltaz_calib::projector_calibration::DotObservation;
+    use deltaz_calib::system_adjustment::Frame;
+    use deltaz_shared::rig::Method;
+    let (geometry, scenario) = &geometries()[0];
+    let (instrument, objects, _) = scanned(0, geometry, scenario, "torso");
+    let model = instrument.model.as_ref().unwrap();
+    let grid = instrument.rig.grid();
+    let dots = object_dots(&true_rig(scenario), &objects[0]);
+    for (id, (col, row), _) in dots.iter().step_by(37) {
+        let dot = DotObservation {
+            id: *id,
+            col: *col,
+            row: *row,
+        };
+        let whole = model
+            .reconstruct(grid, &dot, Method::ClosestApproach, Frame::Camera)
+            .unwrap();
+        let shares = model
+            .reconstruct_shares(grid, &dot, Method::ClosestApproach, Frame::Camera)
+            .unwrap();
+        assert_eq!(whole.point, shares.point);
+        let summed = shares.calibration(&model.core_covariance);
+        let scale = whole.calibration.amax();
+        // The split inverts the core covariance, whose inner-orientation block is nearly
+        // singular (f, cx, cy, k1 correlated): equal to 1e-5 of the largest element, not to
+        // the last digit.
+        assert!(
+            (whole.calibration - summed).amax() <= 1e-4 * scale,
+            "ray {id}: {} vs {summed}",
+            whole.calibration
+        );
+    }
+}
