@@ -120,7 +120,7 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
 
     /// Bytes were lost before the next one: the frame in progress is dropped up to its
     /// delimiter and answered with `Overrun` (seq 0) there.
-    pub fn gap(&mut self) {
+    fn gap(&mut self) {
         self.frame.dropped = Some(WireError::Overrun);
     }
 

@@ -20,6 +20,7 @@
 //!    the torso's error (`sphere_errors.svg`, `plane_errors.svg`, `torso_errors.svg`).
 
 use super::{bar, slashed, v3, write_results};
+use crate::calibration_plots::residual_plots;
 use crate::image_calibration::{calibrate_from_images, Known};
 use crate::link::Device;
 use crate::measure::MeasureParams;
@@ -123,10 +124,13 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
         let object = *objects
             .get(&f.label)
             .with_context(|| format!("frame {}: not a test object", f.label))?;
-        let true_dots: Vec<ObjectDot> = object_dots(&truth, &object);
+        let true_dots: BTreeMap<u16, ObjectDot> = object_dots(&truth, &object)
+            .into_iter()
+            .map(|d| (d.0, d))
+            .collect();
         let mut points = Vec::new();
         for (dot, p) in f.found.identified.iter().zip(&f.found.points) {
-            let hit = true_dots.iter().find(|t| t.0 == dot.id);
+            let hit = true_dots.get(&dot.id);
             let Some((_, (c, r), x)) = hit.filter(|t| {
                 let (c, r) = t.1;
                 (dot.col - c).hypot(dot.row - r) < WRONG_PX
@@ -174,15 +178,10 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     steps.inc(1);
 
     steps.set_message("plots and report");
-    let (histogram, _) = plots::residual_histogram(&cal.residuals)?;
-    let plot_files = [
+    let mut plot_files = residual_plots(&cal.residuals, grid.width, grid.height)?;
+    plot_files.extend([
         (
-            "residual_vectors.svg",
-            plots::residual_vectors(&cal.residuals, grid.width, grid.height)?,
-        ),
-        ("residual_histogram.svg", histogram),
-        (
-            "sphere_errors.svg",
+            "sphere_errors.svg".to_owned(),
             plots::accuracy_map(
                 "Sphere (frame sphere_0) against the fitted sphere, camera system",
                 "Form error",
@@ -190,7 +189,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
             )?,
         ),
         (
-            "plane_errors.svg",
+            "plane_errors.svg".to_owned(),
             plots::accuracy_map(
                 "Tilted plane (frame plane_0) against the fitted plane, camera system",
                 "Flatness error",
@@ -198,14 +197,14 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
             )?,
         ),
         (
-            "torso_errors.svg",
+            "torso_errors.svg".to_owned(),
             plots::accuracy_map(
                 "Torso (frame torso_0) against its truth, camera system",
                 "Z error",
                 &torso_map,
             )?,
         ),
-    ];
+    ]);
     let inner = model.inner;
     let inner_truth = scenario.camera.inner;
     let sigma = &cal.camera.sigma;

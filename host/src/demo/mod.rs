@@ -45,7 +45,7 @@ fn write_results(
     out: &Path,
     ply: &[u8],
     system: &SystemFile,
-    plots: &[(&str, String)],
+    plots: &[crate::calibration_plots::Plot],
     report: &serde_json::Value,
     md: &str,
 ) -> Result<()> {

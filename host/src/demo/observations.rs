@@ -15,6 +15,7 @@ use crate::accuracy::{
     against_truth, bundle_camera, calibrate_simulation, paper_experiment, truth_figures,
 };
 use crate::bundle::CalibrationOptions;
+use crate::calibration_plots::residual_plots;
 use crate::camera_calibration::camera_file;
 use crate::compare::sample_std_about;
 use crate::link::Device;
@@ -258,15 +259,10 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
         .collect();
     let residuals = dot_residuals(&cal.rig, &cal.images, &labels)?;
     let grid = cal.rig.grid();
-    let (histogram, _) = plots::residual_histogram(&residuals)?;
-    let plot_files = [
+    let mut plot_files = residual_plots(&residuals, grid.width, grid.height)?;
+    plot_files.extend([
         (
-            "residual_vectors.svg",
-            plots::residual_vectors(&residuals, grid.width, grid.height)?,
-        ),
-        ("residual_histogram.svg", histogram),
-        (
-            "plate_errors.svg",
+            "plate_errors.svg".to_owned(),
             plots::accuracy_map(
                 "Flat plate (image p3) against truth, camera system",
                 "Z error",
@@ -277,7 +273,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
             )?,
         ),
         (
-            "torso_errors.svg",
+            "torso_errors.svg".to_owned(),
             plots::accuracy_map(
                 "Torso (one device frame) against truth, camera system",
                 "Z error",
@@ -288,7 +284,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
                     .collect::<Vec<_>>(),
             )?,
         ),
-    ];
+    ]);
     let truth_centre = Vector3::from(sim.truth.projector.centre_camera);
     let centre_cam = r * (cal.projector.centre - cal.rig.camera_centre());
     let inner_truth = sim.truth.camera.inner;

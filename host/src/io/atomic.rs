@@ -85,12 +85,14 @@ pub fn write_dir_all_or_nothing<T>(
     result
 }
 
-/// Moves every file below `from` to the same relative place below `to`.
+/// Moves every file below `from` to the same relative place below `to` (renames within one
+/// directory tree: only a filesystem failure part-way could leave some moved).
 fn move_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
-    for entry in std::fs::read_dir(from)? {
-        let entry = entry?;
+    let unreadable = |e: std::io::Error| FileError::whole(from, format!("cannot read: {e}"));
+    for entry in std::fs::read_dir(from).map_err(unreadable)? {
+        let entry = entry.map_err(unreadable)?;
         let target = to.join(entry.file_name());
-        if entry.file_type()?.is_dir() {
+        if entry.file_type().map_err(unreadable)?.is_dir() {
             std::fs::create_dir_all(&target)
                 .map_err(|e| FileError::whole(&target, format!("cannot create: {e}")))?;
             move_tree(&entry.path(), &target)?;
