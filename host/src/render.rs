@@ -145,17 +145,19 @@ pub struct Rendered {
 }
 
 impl Scene {
+    /// The illumination factor of `spot`: 1 at the image centre, 1 − `falloff` at the corners.
+    pub fn illumination(&self, spot: &Spot) -> f64 {
+        let (half_w, half_h) = (self.width as f64 / 2.0, self.height as f64 / 2.0);
+        let corner2 = half_w * half_w + half_h * half_h;
+        1.0 - self.falloff * ((spot.col - half_w).powi(2) + (spot.row - half_h).powi(2)) / corner2
+    }
+
     /// Render: area coverage of every spot × illumination, blurred, plus background and noise.
     pub fn render(&self) -> Rendered {
         let (w, h) = (self.width, self.height);
         let mut spots = vec![0.0; w * h];
-        let (half_w, half_h) = (w as f64 / 2.0, h as f64 / 2.0);
-        let corner2 = half_w * half_w + half_h * half_h;
         for spot in &self.spots {
-            let illum = 1.0
-                - self.falloff * ((spot.col - half_w).powi(2) + (spot.row - half_h).powi(2))
-                    / corner2;
-            let gain = spot.amplitude * illum;
+            let gain = spot.amplitude * self.illumination(spot);
             let reach = spot.semi_a.max(spot.semi_b) + 1.0;
             let c0 = (spot.col - reach).floor().max(0.0) as usize;
             let r0 = (spot.row - reach).floor().max(0.0) as usize;

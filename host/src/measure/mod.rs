@@ -21,6 +21,7 @@
 
 pub mod bench;
 pub mod board;
+pub mod crlb;
 pub mod detect;
 pub mod fit;
 pub mod grid;
