@@ -141,27 +141,16 @@ pub fn covariance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use deltaz_shared::camera::{InnerOrientation, PixelGrid};
     use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
+    use deltaz_shared::paper::{DC40_GRID, TABLE1_INNER, TABLE3_GLOBAL};
     use deltaz_shared::projector::{Projector, ProjectorRay};
     use deltaz_shared::rig::Rig;
 
     /// The paper rig in the 1st plane's frame (Tables 1-4), rays 102 and 203.
     fn paper_rig() -> (SystemRig, Camera<f64>) {
         let camera = Camera {
-            grid: PixelGrid {
-                pixel_size: 0.045,
-                width: 768,
-                height: 512,
-                origin_col: 378.0,
-                origin_row: 252.0,
-            },
-            inner: InnerOrientation {
-                cx: -0.133,
-                cy: 0.208,
-                k1: 0.000063,
-                ..InnerOrientation::ideal(46.981)
-            },
+            grid: DC40_GRID,
+            inner: TABLE1_INNER,
             exterior: ExteriorOrientation {
                 kappa: 0.01329,
                 phi: 0.01418,
@@ -175,7 +164,7 @@ mod tests {
             offset: Vector3::zeros(),
         };
         let rays = vec![ray(102, 0.23928, -0.01954), ray(203, 0.37689, 0.13301)];
-        let projector = Projector::new(Vector3::new(-114.601, 383.502, 1905.981), rays).unwrap();
+        let projector = Projector::new(Vector3::from(TABLE3_GLOBAL), rays).unwrap();
         let rig = Rig::new(camera.grid, camera.inner, &camera.exterior, projector);
         (rig, camera)
     }

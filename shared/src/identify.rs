@@ -628,26 +628,15 @@ fn epipolar_segment<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{InnerOrientation, PixelGrid};
     use crate::collinearity::{Camera, ExteriorOrientation};
+    use crate::paper::{DC40_GRID, TABLE1_INNER, TABLE3_CAMERA};
     use crate::projector::Projector;
     use nalgebra::Vector3;
 
     fn camera() -> Camera<f64> {
         Camera {
-            grid: PixelGrid {
-                pixel_size: 0.045,
-                width: 768,
-                height: 512,
-                origin_col: 378.0,
-                origin_row: 252.0,
-            },
-            inner: InnerOrientation {
-                k1: 6.3e-5,
-                cx: -0.133,
-                cy: 0.208,
-                ..InnerOrientation::ideal(46.981)
-            },
+            grid: DC40_GRID,
+            inner: TABLE1_INNER,
             exterior: ExteriorOrientation {
                 kappa: 0.0133,
                 phi: 0.0142,
@@ -658,7 +647,7 @@ mod tests {
     }
 
     /// The projector of Table 3 (camera system); rays aimed at camera-system points at 1700 mm.
-    const PROJECTOR: [f64; 3] = [-490.304, 23.837, 56.825];
+    const PROJECTOR: [f64; 3] = TABLE3_CAMERA;
 
     fn ray_at(id: u16, x: f64, y: f64) -> ProjectorRay<f64> {
         let cam = camera();
