@@ -955,10 +955,23 @@ impl SystemModel {
         })
     }
 
+    /// The pseudo-inverse of the core covariance that [`Self::reconstruct_shares`] splits the
+    /// rays' parameters with, computed once for all dots: a core parameter held fixed (a zero
+    /// row and column, and zero cross covariance) splits off nothing.
+    pub fn core_split(&self) -> Result<CoreSplit, SystemError> {
+        let c = &self.core_covariance;
+        c.clone()
+            .pseudo_inverse(c.amax() * 1e-14)
+            .map(CoreSplit)
+            .map_err(|_| SystemError::Singular)
+    }
+
     /// [`Self::reconstruct`] with the calibration's covariance split into the share common to
-    /// every point and the ray's own ([`PointShares`]), for the covariance between points.
+    /// every point and the ray's own ([`PointShares`]), for the covariance between points;
+    /// `split` is this model's [`Self::core_split`].
     pub fn reconstruct_shares(
         &self,
+        split: &CoreSplit,
         grid: &PixelGrid<f64>,
         dot: &DotObservation,
         method: Method,
@@ -968,14 +981,7 @@ impl SystemModel {
         let ray = &self.rays[l.ray];
         // Split the ray's parameters r = A δc + u (see [`PointShares`]).
         let core = self.core_covariance.nrows();
-        // The pseudo-inverse: a core parameter held fixed (a zero row and column, and zero
-        // cross covariance) splits off nothing.
-        let c = &self.core_covariance;
-        let c_inv = c
-            .clone()
-            .pseudo_inverse(c.amax() * 1e-14)
-            .map_err(|_| SystemError::Singular)?;
-        let a = &ray.cross * c_inv;
+        let a = &ray.cross * &split.0;
         let own = &ray.covariance - &a * ray.cross.transpose();
         let j_core = l.jacobian.columns(0, core);
         let j_ray = l.jacobian.columns(core, ray.params.len());
@@ -1087,6 +1093,10 @@ impl SystemModel {
         })
     }
 }
+
+/// The pseudo-inverse of a model's core covariance ([`SystemModel::core_split`]).
+#[derive(Debug, Clone)]
+pub struct CoreSplit(DMatrix<f64>);
 
 /// [`SystemModel::linearise`]'s result.
 struct Linearised {

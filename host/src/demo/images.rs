@@ -117,6 +117,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     let q = 0.5_f64.powi(i32::from(centroid_fraction_bits(grid.width, grid.height)));
     let s2 = model.sigma_dots_px * model.sigma_dots_px;
     let quantised = (s2 + q * q / 12.0) / s2;
+    let split = model.core_split()?;
     let (mut wrong, mut device_vs_host, mut centroid2, mut dots) = (0, 0.0_f64, 0.0, 0);
     let mut cloud = Vec::new();
     let mut cloud_frames = Vec::new();
@@ -139,7 +140,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
                 continue;
             };
             let mut shares = model
-                .reconstruct_shares(grid, dot, Method::ClosestApproach, Frame::Camera)
+                .reconstruct_shares(&split, grid, dot, Method::ClosestApproach, Frame::Camera)
                 .map_err(|e| anyhow::anyhow!("frame {} ray {}: {e}", f.label, dot.id))?;
             shares.image *= quantised;
             device_vs_host = device_vs_host.max((p.point - shares.point).norm());

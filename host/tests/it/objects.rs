@@ -237,6 +237,7 @@ fn point_covariance_equals_its_shares() {
     let model = instrument.model.as_ref().unwrap();
     let grid = instrument.rig.grid();
     let dots = object_dots(&true_rig(scenario), &objects[0]);
+    let split = model.core_split().unwrap();
     for (id, (col, row), _) in dots.iter().step_by(37) {
         let dot = DotObservation {
             id: *id,
@@ -247,7 +248,7 @@ fn point_covariance_equals_its_shares() {
             .reconstruct(grid, &dot, Method::ClosestApproach, Frame::Camera)
             .unwrap();
         let shares = model
-            .reconstruct_shares(grid, &dot, Method::ClosestApproach, Frame::Camera)
+            .reconstruct_shares(&split, grid, &dot, Method::ClosestApproach, Frame::Camera)
             .unwrap();
         assert_eq!(whole.point, shares.point);
         let summed = shares.calibration(&model.core_covariance);

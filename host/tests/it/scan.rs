@@ -125,6 +125,7 @@ impl Instrument {
                 image,
                 ..model
                     .reconstruct_shares(
+                        &model.core_split().unwrap(),
                         self.rig.grid(),
                         dot,
                         Method::ClosestApproach,
