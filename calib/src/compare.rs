@@ -217,6 +217,28 @@ pub fn match_points(
     Ok(matched)
 }
 
+/// Refuses points that (nearly) lie on one line: the similarity's rotation about that line
+/// would be arbitrary. The spread across the line must be at least 1e-3 of the spread along it.
+pub fn check_not_collinear(points: &[Vector3<f64>]) -> Result<()> {
+    let n = points.len().max(1) as f64;
+    let mean = points.iter().sum::<Vector3<f64>>() / n;
+    let scatter = points
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<Matrix3<f64>>();
+    let mut spread = scatter.symmetric_eigenvalues().map(|v| v.max(0.0).sqrt());
+    spread.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if spread[1] < 1e-3 * spread[0] {
+        bail!(
+            "the matched points are (nearly) collinear (spread {:.3e} mm across their line, \
+             {:.3e} mm along it): the rotation about that line is undetermined",
+            spread[1],
+            spread[0]
+        );
+    }
+    Ok(())
+}
+
 /// Points matched by label.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Matched {

@@ -354,4 +354,56 @@ mod tests {
         assert_eq!((answers[1].seq, stats.bad_frames), (6, 1));
         assert_eq!(answers[2].seq, 7);
     }
+
+    /// The logging shim ([`crate::logging`]) with its feature: the server's events reach `log`.
+    #[cfg(feature = "log")]
+    mod logging {
+        use super::*;
+        use std::sync::Mutex;
+
+        /// The records logged, as `level message`.
+        static RECORDS: Mutex<Vec<String>> = Mutex::new(Vec::new());
+
+        struct Capture;
+
+        impl log::Log for Capture {
+            fn enabled(&self, _: &log::Metadata) -> bool {
+                true
+            }
+            fn log(&self, record: &log::Record) {
+                if record.target() == "deltaz::device" {
+                    let line = format!("{} {}", record.level(), record.args());
+                    RECORDS.lock().unwrap().push(line);
+                }
+            }
+            fn flush(&self) {}
+        }
+
+        /// With the feature, a boot without a calibration and a bad frame are logged.
+        #[test]
+        fn events_reach_the_log_facade() {
+            log::set_logger(&Capture).unwrap();
+            log::set_max_level(log::LevelFilter::Trace);
+            let store = Store::new(
+                RamFlash::<{ 8 * 4096 }>::new(),
+                [(0, 16384), (16384, 32768)],
+            )
+            .unwrap();
+            let mut server = Server::boot(store, NoProbe);
+            for &byte in b"\x07garbage\x00" {
+                server.push(byte, &mut |_| {});
+            }
+            let records = RECORDS.lock().unwrap().clone();
+            assert!(
+                records
+                    .iter()
+                    .any(|r| r == "INFO boot: no stored calibration"),
+                "{records:?}"
+            );
+            assert!(
+                records.iter().any(|r| r.starts_with("DEBUG bad frame")),
+                "{records:?}"
+            );
+        }
+    }
 }

@@ -1,32 +1,17 @@
-//! The deltaz host: the heavy work (calibration, simulation, accuracy assessment) and the link to
-//! the device.
+//! The deltaz host: the `deltaz` command line over libraries, in layers that import only
+//! downwards (checked by the `module_graph` test of `deltaz-tests`):
+//!
+//! | layer | modules | what |
+//! |---|---|---|
+//! | commands | [`commands`] | one file per subcommand: its clap arguments and an `exec` that maps files and options to one workflow call |
+//! | workflows | [`workflows`] | the chains, each written once: field → camera, plates → projector, both → system, images → observations, frames → points, the demo |
+//! | libraries | [`io`], [`link`], [`simulate`], [`report`] | file formats, the device link, simulation, reports and plots: free of clap and of the command line |
+//! | crates | `deltaz-calib`, `deltaz-measure`, `deltaz-shared` | the calibration core, image measurement, the camera/projector model and the wire protocol |
 #![deny(missing_docs)]
 
-pub mod accuracy;
-pub mod board_calibration;
-pub mod calibration_plots;
-pub mod camera_calibration;
-pub mod cli;
-pub mod demo;
-pub mod device_cli;
-pub mod export;
-pub mod image_calibration;
+pub mod commands;
 pub mod io;
 pub mod link;
-pub mod measure;
-pub mod object_accuracy;
-pub mod parallel;
-pub mod pattern;
-pub mod plates;
-pub mod plots;
-pub mod ply;
-pub mod reconstruct_stream;
-pub mod render;
-pub mod residuals;
-pub mod scan;
+pub mod report;
 pub mod simulate;
-pub mod system;
-pub mod system_bench;
-pub mod target_field;
-
-pub use deltaz_calib::{bundle, compare, projector_calibration, reconstruct, resection};
+pub mod workflows;

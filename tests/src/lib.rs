@@ -171,9 +171,9 @@ pub mod pattern {
 /// Dots on a torso-like surface seen by the paper's rig (camera at the origin, the 440-dot
 /// pattern with its rows turned as in Table 4): frames for identifying unlabelled dots.
 pub mod torso {
+    use deltaz_host::io::system_file::SystemRig;
     use deltaz_host::simulate::images::true_rig;
     use deltaz_host::simulate::Scenario;
-    use deltaz_host::system::SystemRig;
 
     /// Distance of the wall behind the body from the camera (mm).
     pub const WALL: f64 = 1740.0;

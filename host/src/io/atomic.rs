@@ -2,8 +2,9 @@
 //! target, so readers see either the old file or the complete new one, never a partial one.
 
 use super::{FileError, Result};
-use std::io::Write;
-use std::path::Path;
+use anyhow::{bail, Context};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
 
 /// Writes `bytes` to `path` atomically (temporary file in the same directory + rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
@@ -138,6 +139,67 @@ pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<
         .map_err(|e| FileError::whole(path, format!("cannot serialise: {e}")))?;
     text.push('\n');
     write_atomic(path, text.as_bytes())
+}
+
+/// A temporary file next to its target, removed on drop unless renamed over the target.
+pub struct Pending {
+    /// The temporary file.
+    pub tmp: PathBuf,
+    /// The file it becomes.
+    pub target: PathBuf,
+    done: bool,
+}
+
+impl Pending {
+    /// A temporary file for `target` (named with `tag`), and a buffered writer to it.
+    pub fn new(target: &Path, tag: &str) -> anyhow::Result<(Self, BufWriter<std::fs::File>)> {
+        let dir = match target.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let name = target
+            .file_name()
+            .with_context(|| format!("{}: not a file name", target.display()))?;
+        // Refused now, not at the rename, when another output may already be in place.
+        if target.is_dir() {
+            bail!("{}: cannot write: it is a directory", target.display());
+        }
+        let tmp = dir.join(format!(
+            ".{}.{tag}.tmp{}",
+            name.to_string_lossy(),
+            std::process::id()
+        ));
+        let file = std::fs::File::create(&tmp)
+            .with_context(|| format!("{}: cannot write", target.display()))?;
+        let pending = Self {
+            tmp,
+            target: target.to_path_buf(),
+            done: false,
+        };
+        Ok((pending, BufWriter::with_capacity(1 << 20, file)))
+    }
+
+    /// Flushes and syncs the writer, then renames the temporary over the target.
+    pub fn commit(mut self, writer: BufWriter<std::fs::File>) -> anyhow::Result<()> {
+        let file = writer
+            .into_inner()
+            .map_err(|e| e.into_error())
+            .and_then(|f| f.sync_all().map(|_| f))
+            .with_context(|| format!("{}: cannot write", self.target.display()))?;
+        drop(file);
+        std::fs::rename(&self.tmp, &self.target)
+            .with_context(|| format!("{}: cannot write", self.target.display()))?;
+        self.done = true;
+        Ok(())
+    }
+}
+
+impl Drop for Pending {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
 }
 
 #[cfg(test)]

@@ -1,5 +1,6 @@
-//! The files other tools and tests exchange: image observations (CSV), control points (CSV) and
-//! the camera calibration (`camera.json`, "deltaz.camera/1").
+//! The files other tools and tests exchange: image observations (CSV), control points (CSV),
+//! the camera calibration (`camera.json`), the system calibration (`system.json`), resected
+//! poses, point clouds (PLY) and OpenCV's camera file.
 //!
 //! Readers fail with a [`FileError`] naming the file, the line and the problem; writers go through
 //! [`atomic::write_atomic`], so a failed run never leaves a partial file behind.
@@ -8,6 +9,10 @@ pub mod atomic;
 pub mod camera_file;
 pub mod control;
 pub mod observations;
+pub mod opencv;
+pub mod ply;
+pub mod poses;
+pub mod system_file;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -250,4 +255,34 @@ pub(crate) fn csv_text<'a>(
         let _ = writer.write_record(row.iter().map(|f| f.as_ref()));
     }
     String::from_utf8(writer.into_inner().unwrap_or_default()).unwrap_or_default()
+}
+
+/// Labelled points of a CSV `point,X,Y,Z` or a PLY cloud (by its extension).
+pub fn read_points(path: &Path) -> anyhow::Result<Vec<(String, nalgebra::Vector3<f64>)>> {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+    {
+        return Ok(ply::read_points(path)?);
+    }
+    Ok(control::read_control(path)?
+        .into_iter()
+        .map(|c| (c.point, c.xyz))
+        .collect())
+}
+
+/// The `format` tag of a JSON file (`"deltaz.system/2"`, ...), if it has one: read before the
+/// rest, so that a file of another kind is named as such.
+pub fn format_tag(text: &str) -> Option<String> {
+    #[derive(serde::Deserialize)]
+    struct Tagged {
+        format: String,
+    }
+    serde_json::from_str::<Tagged>(text).ok().map(|t| t.format)
+}
+
+/// The first line of a points CSV: a `#` comment (the readers skip it) with the unit, the points'
+/// frame and the calibration's fingerprint.
+pub fn points_comment(frame: &str, fingerprint: u64) -> String {
+    format!("# points in mm, {frame}, calibration {fingerprint:016x}\n")
 }

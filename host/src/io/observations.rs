@@ -9,6 +9,7 @@ use super::atomic::write_atomic;
 use super::text_field;
 use super::{csv_text, header_columns, number_field, optional_column, record_line, records};
 use super::{FileError, Result};
+use deltaz_calib::projector_calibration::DotObservation;
 use std::borrow::Cow;
 use std::collections::HashSet;
 use std::path::Path;
@@ -164,6 +165,31 @@ pub fn image_labels(observations: &[Observation]) -> Vec<String> {
         }
     }
     labels
+}
+
+/// The dot rows of an observations file (all rows when none is marked `dot`), each with its
+/// image label; a label that is not a ray id names its line.
+pub fn dot_observations(
+    path: &Path,
+    obs: &[Observation],
+) -> anyhow::Result<Vec<(String, DotObservation)>> {
+    let any_dot = obs.iter().any(|o| o.kind == PointKind::Dot);
+    obs.iter()
+        .filter(|o| !any_dot || o.kind == PointKind::Dot)
+        .map(|o| {
+            let id = o.point.parse::<u16>().map_err(|_| {
+                FileError::at(path, o.line, format!("point {:?} is not a ray id", o.point))
+            })?;
+            Ok((
+                o.image.clone(),
+                DotObservation {
+                    id,
+                    col: o.col,
+                    row: o.row,
+                },
+            ))
+        })
+        .collect()
 }
 
 #[cfg(test)]

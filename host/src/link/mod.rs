@@ -39,3 +39,10 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
         (**self).recv(buf, timeout)
     }
 }
+
+/// The device's miss distance at saturation (mm): a point whose miss distance is this large
+/// was farther from its ray than the wire format can say (a lower bound).
+pub fn miss_saturated_mm() -> f64 {
+    use deltaz_shared::protocol::fixed::{MISS_SATURATED, MISS_UNITS_PER_MM};
+    f64::from(MISS_SATURATED) / MISS_UNITS_PER_MM
+}

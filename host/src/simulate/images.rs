@@ -5,18 +5,18 @@
 //! Each circular target and each dot is drawn as the affine image of its circle about the image
 //! of its centre (the local Jacobian of the projection, distortion included), so the rendered
 //! ellipse is centred on the true point: the perspective bias of circle centres is left out here
-//! and bounded apart ([`crate::measure::perspective_bias`]: below 0.02 pixel at the paper's
+//! and bounded apart ([`deltaz_measure::perspective_bias`]: below 0.02 pixel at the paper's
 //! geometry). Dots are the footprints of a light cone of half-angle [`ImageSpec::dot_angle`]
 //! on the plate. The distinct control targets of [`distinct_targets`] are drawn
 //! [`ImageSpec::distinct_scale`] times larger, for their identification by the known layout
-//! ([`crate::measure::layout`]). Images carry blur, noise, uneven illumination and a non-uniform background
-//! ([`crate::render`]).
+//! ([`deltaz_measure::layout`]). Images carry blur, noise, uneven illumination and a non-uniform background
+//! ([`deltaz_measure::render`]).
 
 use super::{field_stations, field_targets, true_camera, Scenario};
 use crate::io::observations::{write_observations, Observation, PointKind};
-use crate::render::{Background, BitDepth, Scene, Spot};
-use crate::target_field::{distinct_targets, CONTROL_SUFFIX, DISTINCT_COUNT};
 use anyhow::Result;
+use deltaz_measure::render::{Background, BitDepth, Scene, Spot};
+use deltaz_measure::target_field::{distinct_targets, CONTROL_SUFFIX, DISTINCT_COUNT};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::rig::Rig;
@@ -42,12 +42,12 @@ pub struct ImageSpec {
     /// Sample depth of the PNG files.
     pub depth: BitDepth,
     /// The grid node (row, column) whose dot is the marker, drawn `marker_scale` times larger
-    /// (for identification by the grid topology, [`crate::measure::grid`]).
+    /// (for identification by the grid topology, [`deltaz_measure::grid`]).
     pub marker_node: Option<(u16, u16)>,
     /// Size of the marker dot relative to the others.
     pub marker_scale: f64,
     /// Radius of the distinct control targets (those of
-    /// [`crate::target_field::distinct_targets`]) relative to the others.
+    /// [`deltaz_measure::target_field::distinct_targets`]) relative to the others.
     pub distinct_scale: f64,
 }
 
@@ -136,7 +136,7 @@ fn scene(camera: &Camera<f64>, spots: Vec<Spot>, spec: &ImageSpec, seed: u64) ->
 
 /// The scenario's true camera and projector as a rig in the camera system (camera at the
 /// origin, unrotated): all that dot identification needs.
-pub fn true_rig(scenario: &Scenario) -> crate::system::SystemRig {
+pub fn true_rig(scenario: &Scenario) -> crate::io::system_file::SystemRig {
     let (grid, inner) = true_camera(scenario);
     let [k, p, o] = scenario.rig.projector_angles;
     let rays = scenario

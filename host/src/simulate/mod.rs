@@ -9,6 +9,7 @@
 
 pub mod images;
 pub mod objects;
+pub mod pattern;
 pub mod scenario;
 pub mod truth;
 
@@ -347,6 +348,40 @@ pub fn load_scenario(name_or_path: &str) -> anyhow::Result<Scenario> {
     Scenario::from_toml(&text).map_err(|e| anyhow::anyhow!("{name_or_path}: {e}"))
 }
 
+/// What [`write_scenario`] wrote.
+#[derive(Debug, Clone)]
+pub struct Written {
+    /// The simulation whose files were written.
+    pub simulation: Simulation,
+    /// With images: how many field and plate images, and how many test object frames.
+    pub rendered: Option<(usize, usize)>,
+}
+
+/// Simulate `scenario` with `seed` into the directory `out`, all or nothing: the observation,
+/// control and truth files ([`write_simulation`]) and, with `images`, the rendered field and plate
+/// images ([`images::write_images`]) and test objects ([`objects::write_objects`]).
+pub fn write_scenario(
+    out: &Path,
+    scenario: &Scenario,
+    seed: u64,
+    images: Option<&images::ImageSpec>,
+) -> anyhow::Result<Written> {
+    let simulation = simulate(scenario, seed);
+    let rendered = crate::io::atomic::write_dir_all_or_nothing(out, |dir| {
+        write_simulation(dir, &simulation)?;
+        let Some(spec) = images else {
+            return Ok(None);
+        };
+        let images = images::write_images(scenario, seed, spec, dir)?;
+        let objects = objects::write_objects(scenario, seed, dir)?;
+        Ok(Some((images, objects)))
+    })?;
+    Ok(Written {
+        simulation,
+        rendered,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -371,7 +406,7 @@ mod tests {
         let truth = simulate(&quiet_paper(), 1).truth;
         let c = v(truth.projector.centre_global);
         assert!((c - Vector3::from(TABLE3_GLOBAL)).amax() < 0.01, "{c}");
-        for (id, (_, d)) in crate::pattern::TABLE4_IDS.into_iter().zip(TABLE4) {
+        for (id, (_, d)) in crate::simulate::pattern::TABLE4_IDS.into_iter().zip(TABLE4) {
             let ray = truth.projector.rays.iter().find(|r| r.id == id).unwrap();
             assert!(
                 (v(ray.global) - v(d).normalize()).amax() < 1e-12,

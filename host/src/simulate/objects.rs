@@ -8,9 +8,9 @@
 //! origin, looking along −Z). Dots are drawn as circles centred on their true pixels.
 
 use super::{images::true_rig, Scenario};
-use crate::render::{Background, Scene, Spot};
-use crate::system::SystemRig;
+use crate::io::system_file::SystemRig;
 use anyhow::Result;
+use deltaz_measure::render::{Background, Scene, Spot};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use nalgebra::Vector3;
 use serde::Serialize;

@@ -2,7 +2,7 @@
 //! its images, the noise. [`Scenario::paper`] is the paper's set-up.
 
 use crate::io::camera_file::{InnerParams, PoseParams};
-use crate::pattern::PatternSpec;
+use crate::simulate::pattern::PatternSpec;
 use deltaz_shared::paper::{DC40_GRID, TABLE1_INNER, TABLE2, TABLE3_CAMERA};
 use serde::{Deserialize, Serialize};
 

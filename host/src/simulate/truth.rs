@@ -2,7 +2,7 @@
 
 use super::Scenario;
 use crate::io::camera_file::{InnerParams, PoseParams, Station};
-use crate::pattern::PatternRay;
+use crate::simulate::pattern::PatternRay;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use deltaz_shared::projector::{Projector, ProjectorRay};

@@ -5,12 +5,12 @@
 //! The camera's inner orientation is the simulator's truth here (camera calibration is tested
 //! apart); every plate image is resected (step 4) from the noisy plate control and images.
 
-use deltaz_host::accuracy::{
+use deltaz_calib::projector_calibration::Model;
+use deltaz_host::io::observations::PointKind;
+use deltaz_host::simulate::{simulate, true_camera, Scenario, Simulation};
+use deltaz_host::workflows::accuracy::{
     against_truth, calibrate_simulation, paper_experiment, truth_figures, Calibrated, TABLE4_IDS,
 };
-use deltaz_host::io::observations::PointKind;
-use deltaz_host::projector_calibration::Model;
-use deltaz_host::simulate::{simulate, true_camera, Scenario, Simulation};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::rig::Method;
 use nalgebra::Vector3;

@@ -127,12 +127,12 @@ fn edited(name: &str, from: &str, to: &str) -> String {
 
 /// The fixture's system.json with its rays repeated to 900 (new ids), more than a device holds.
 fn oversized_system() -> String {
-    use deltaz_host::system::SystemFile;
+    use deltaz_host::io::system_file::SystemFile;
     let text = std::fs::read_to_string(fixture().join("system.json")).unwrap();
     let mut content = serde_json::from_str::<SystemFile>(&text).unwrap().content;
     let rays = content.projector.rays.clone();
     content.projector.rays = (0..900)
-        .map(|k| deltaz_host::system::SystemRay {
+        .map(|k| deltaz_host::io::system_file::SystemRay {
             id: k as u16,
             ..rays[k % rays.len()].clone()
         })
@@ -307,7 +307,7 @@ fn cases() -> Vec<Case> {
         case("device --qemu=none.elf info", &["none.elf"]),
         // export
         case("export opencv --camera none.json --out c.yml", &["none.json", "No such file"]),
-        case("export opencv --system camera.json --out c.yml", &["camera.json", "not a valid system.json"]),
+        case("export opencv --system camera.json --out c.yml", &["camera.json", "format \"deltaz.camera/1\", expected \"deltaz.system/2\""]),
         case("export opencv --camera camera.json --out nodir/c.yml", &["nodir/c.yml", "cannot write"]),
         // demo
         case("demo --out sim/camera_obs.csv", &["sim/camera_obs.csv"]),

@@ -29,14 +29,14 @@
 //! pixel.
 
 use super::real_images::photos;
+use deltaz_calib::bundle::CalibrationOptions;
 use deltaz_calib::residual::inner_from_array;
-use deltaz_host::board_calibration::{calibrate_board, BoardCalibration};
-use deltaz_host::bundle::CalibrationOptions;
-use deltaz_host::export::OpenCvCamera;
 use deltaz_host::io::camera_file::CameraFile;
-use deltaz_host::measure::board::Board;
-use deltaz_host::measure::detect::Polarity;
-use deltaz_host::measure::MeasureParams;
+use deltaz_host::io::opencv::OpenCvCamera;
+use deltaz_host::workflows::board::{calibrate_board, BoardCalibration};
+use deltaz_measure::board::Board;
+use deltaz_measure::detect::Polarity;
+use deltaz_measure::MeasureParams;
 use deltaz_shared::collinearity::{project_camera_point, ExteriorOrientation};
 use nalgebra::{DMatrix, Vector2};
 

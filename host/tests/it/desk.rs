@@ -3,8 +3,8 @@
 
 use deltaz_host::io::camera_file::PoseParams;
 use deltaz_host::io::observations::PointKind;
-use deltaz_host::plates::resect_images;
 use deltaz_host::simulate::{simulate, true_camera, Scenario};
+use deltaz_host::workflows::plates::resect_images;
 use std::path::Path;
 
 /// Every plate image resects (5 seeds), its pose within 4σ of the truth; at least one image of

@@ -34,6 +34,7 @@ fn err(args: &[&str]) -> String {
 fn points(path: &Path) -> HashMap<(String, String), [f64; 3]> {
     let text = std::fs::read_to_string(path).unwrap();
     text.lines()
+        .filter(|l| !l.starts_with('#'))
         .skip(1)
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
@@ -237,7 +238,9 @@ fn stream_matches_reconstruct() {
         "{wide}"
     );
     let rows = std::fs::read_to_string(dir.path().join("wide.csv")).unwrap();
-    assert_eq!(rows.lines().count() as u64 - 1, n(&wide["points"]));
+    assert_eq!(rows.lines().count() as u64 - 2, n(&wide["points"]));
+    let (comment, rows) = rows.split_once('\n').unwrap();
+    assert!(comment.starts_with("# points in mm, the plate frame of image p1, calibration "));
     assert!(rows.starts_with("image,point,X,Y,Z,miss,saturated\n"));
     let ply = std::fs::read(dir.path().join("wide.ply")).unwrap();
     let header = String::from_utf8_lossy(&ply[..800]);

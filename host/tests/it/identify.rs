@@ -1,11 +1,11 @@
 //! Identification of projected dots on rendered frames of a curved (torso-like) surface, with the
 //! paper's camera, projector centre and 20 × 22 pattern: render → measure → identify.
 
-use deltaz_host::measure::detect::GrayView;
-use deltaz_host::measure::{measure, MeasureParams};
-use deltaz_host::render::{Background, Scene, Spot};
 use deltaz_host::simulate::images::true_rig;
 use deltaz_host::simulate::{true_camera, Scenario};
+use deltaz_measure::detect::GrayView;
+use deltaz_measure::render::{Background, Scene, Spot};
+use deltaz_measure::{measure, MeasureParams};
 use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
 use deltaz_shared::projector::ProjectorRay;

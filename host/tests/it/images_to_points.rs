@@ -5,18 +5,18 @@
 //! Not yet here: the plate images. There the projected dots merge with most distinct targets and
 //! the layout match does not yet find a start (it reports an error rather than a wrong labelling).
 
-use deltaz_host::accuracy::{paper_experiment, Calibrated};
-use deltaz_host::bundle::{calibrate, CalibrationOptions};
-use deltaz_host::camera_calibration::{build_problem, camera_file};
+use deltaz_calib::bundle::{calibrate, CalibrationOptions};
+use deltaz_calib::projector_calibration::{calibrate_projector, Model};
 use deltaz_host::io::observations::{read_observations, Observation, PointKind};
-use deltaz_host::measure::identify_images::{identify_images, image_files, DotGrid};
-use deltaz_host::measure::layout::Layout;
-use deltaz_host::measure::MeasureParams;
-use deltaz_host::plates::{plate_images, resect_images};
-use deltaz_host::projector_calibration::{calibrate_projector, Model};
+use deltaz_host::io::system_file::SystemContent;
 use deltaz_host::simulate::images::{write_images, ImageSpec};
 use deltaz_host::simulate::{simulate, Scenario};
-use deltaz_host::system::SystemContent;
+use deltaz_host::workflows::accuracy::{paper_experiment, Calibrated};
+use deltaz_host::workflows::camera::{build_problem, camera_file};
+use deltaz_host::workflows::observations::{identify_images, image_files, DotGrid};
+use deltaz_host::workflows::plates::{plate_images, resect_images};
+use deltaz_measure::layout::Layout;
+use deltaz_measure::MeasureParams;
 use deltaz_shared::rig::Method;
 use nalgebra::{Vector2, Vector3};
 use std::path::Path;
@@ -214,7 +214,7 @@ fn paper_scenario_from_images_to_points() {
         projector.single_plane
     );
     assert!(projector.single_plane.len() <= 10);
-    let content = SystemContent::new(grid, inner, plates[0].exterior, &projector);
+    let content = SystemContent::new(grid, inner, (&poses[0].0, plates[0].exterior), &projector);
     let cal = Calibrated {
         rig: content.rig().unwrap(),
         images: plates,

@@ -1,10 +1,10 @@
-//! The known-layout match of control targets ([`deltaz_host::measure::layout`]) on the paper
+//! The known-layout match of control targets ([`deltaz_measure::layout`]) on the paper
 //! plate seen by the simulator's true camera: the distinct-target rule, its errors, and the
 //! match among dot-like blobs.
 
-use deltaz_host::measure::layout::{match_layout, Blob, Layout, LayoutError};
 use deltaz_host::simulate::{plate_targets, true_camera, Scenario};
-use deltaz_host::target_field::{distinct_targets, DISTINCT_COUNT};
+use deltaz_measure::layout::{match_layout, Blob, Layout, LayoutError};
+use deltaz_measure::target_field::{distinct_targets, DISTINCT_COUNT};
 use deltaz_shared::collinearity::Camera;
 use nalgebra::{Vector2, Vector3};
 use rand::{RngExt, SeedableRng};

@@ -8,6 +8,7 @@ mod demo;
 mod desk;
 mod device_cli;
 mod export_opencv;
+mod frames;
 mod identify;
 mod images_cli;
 mod images_to_points;

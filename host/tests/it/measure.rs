@@ -1,9 +1,9 @@
 //! Centroid accuracy on rendered dots and the measurement's error handling.
 
-use deltaz_host::measure::crlb::rms_bound_8bit;
-use deltaz_host::measure::detect::GrayView;
-use deltaz_host::measure::{measure, CentreMethod, MeasureParams, Measurement};
-use deltaz_host::render::{Background, Rendered, Scene, Spot};
+use deltaz_measure::crlb::rms_bound_8bit;
+use deltaz_measure::detect::GrayView;
+use deltaz_measure::render::{Background, Rendered, Scene, Spot};
+use deltaz_measure::{measure, CentreMethod, MeasureParams, Measurement};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 
@@ -177,8 +177,9 @@ fn shape_tests_reject_clutter() {
 /// empty file, a truncated and a corrupt PNG, a text file and an image without targets.
 #[test]
 fn image_files_and_errors() {
-    use deltaz_host::measure::{measure_file, measure_images};
-    use deltaz_host::render::BitDepth;
+    use deltaz_host::workflows::observations::measure_images;
+    use deltaz_measure::measure_file;
+    use deltaz_measure::render::BitDepth;
     let dir = tempfile::tempdir().unwrap();
     let scene = dot_field(5.0, 9);
     let img = scene.render();

@@ -82,7 +82,7 @@ fn simulate_images_then_measure() {
 /// reported with its rejections per reason and a polarity hint, and the exit code says so.
 #[test]
 fn batch_goes_on_past_an_image_without_targets() {
-    use deltaz_host::render::{Background, BitDepth, Scene, Spot};
+    use deltaz_measure::render::{Background, BitDepth, Scene, Spot};
     let dir = tempfile::tempdir().unwrap();
     let scene = |level: f64, amplitude: f64| Scene {
         width: 200,

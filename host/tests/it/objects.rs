@@ -6,13 +6,13 @@
 //! covariance, with the calibration's error common to all points carried through the fits.
 
 use crate::scan::{error_at_floor, propagated, scan_frames, Instrument, Matched};
-use deltaz_host::image_calibration::{calibrate_from_images, Known};
-use deltaz_host::object_accuracy::{fit_plane, fit_sphere, form, SurfaceFit};
+use deltaz_host::report::object_accuracy::{fit_plane, fit_sphere, form, SurfaceFit};
 use deltaz_host::simulate::images::{true_rig, write_images, ImageSpec};
 use deltaz_host::simulate::objects::{
     object_dots, object_frame, plate_depth, test_objects, Object,
 };
 use deltaz_host::simulate::Scenario;
+use deltaz_host::workflows::system::{calibrate_from_images, Known};
 use nalgebra::Vector3;
 use std::sync::OnceLock;
 
@@ -37,7 +37,7 @@ pub(crate) fn from_images(geometry: &str, scenario: &Scenario, seed: u64) -> Ins
     write_images(scenario, seed, &spec, dir.path()).unwrap();
     let known = Known::simulated(scenario, &spec, seed).unwrap();
     let cal = calibrate_from_images(&dir.path().join("images"), &known).unwrap();
-    let m = &cal.adjustment.model;
+    let m = &cal.system.adjustment.model;
     let truth = scenario.camera.inner;
     println!(
         "{geometry}: calibrated from images: f {:.4} mm (true {:.4}), centre {:.2?} mm (σ {:.3?}, true {:.2?}), \
@@ -48,12 +48,12 @@ pub(crate) fn from_images(geometry: &str, scenario: &Scenario, seed: u64) -> Ins
         m.centre_sigma().as_slice(),
         scenario.rig.projector_centre,
         m.rays.len(),
-        cal.adjustment.sigma_targets_px,
+        cal.system.adjustment.sigma_targets_px,
         m.sigma_dots_px
     );
     Instrument {
         rig: cal.rig,
-        model: Some(cal.adjustment.model),
+        model: Some(cal.system.adjustment.model),
     }
 }
 

@@ -64,7 +64,11 @@ fn calibrate_then_reconstruct() {
         assert!(out.status.success(), "{model}: {}", stderr(&out));
         let system: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(d.join("system.json")).unwrap()).unwrap();
-        assert_eq!(system["format"], "deltaz.system/1");
+        assert_eq!(system["format"], "deltaz.system/2");
+        assert_eq!(
+            system["frame"],
+            serde_json::json!({"kind": "plate", "image": "p1"})
+        );
         assert_eq!(system["projector"]["rays"].as_array().unwrap().len(), 440);
         assert_eq!(system["fingerprint"].as_str().unwrap().len(), 16);
     }
@@ -100,7 +104,7 @@ fn calibrate_then_reconstruct() {
     let csv = std::fs::read_to_string(d.join("cloud.csv")).unwrap();
     let rows: Vec<Vec<f64>> = csv
         .lines()
-        .skip(1)
+        .skip(2)
         .map(|l| l.split(',').skip(1).map(|v| v.parse().unwrap()).collect())
         .collect();
     assert_eq!(rows.len(), 440);
@@ -225,9 +229,9 @@ fn bad_input_is_named_and_nothing_is_written() {
 /// after the first batch fails naming its line and leaves no output and no temporary file.
 #[test]
 fn reconstruct_streams_across_batches() {
-    use deltaz_host::projector_calibration::DotObservation;
-    use deltaz_host::reconstruct::reconstruct;
-    use deltaz_host::system::SystemFile;
+    use deltaz_calib::projector_calibration::DotObservation;
+    use deltaz_calib::reconstruct::reconstruct;
+    use deltaz_host::io::system_file::SystemFile;
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     setup(d);
@@ -279,7 +283,11 @@ fn reconstruct_streams_across_batches() {
     // x y z, ray_id, miss, frame (the image's index).
     assert_eq!(body, total * (3 * 8 + 2 + 8 + 4));
     let csv = std::fs::read_to_string(d.join("many.csv.out")).unwrap();
-    let lines: Vec<&str> = csv.lines().skip(1).collect();
+    assert!(
+        csv.starts_with("# points in mm, the plate frame of image "),
+        "{csv:.80}"
+    );
+    let lines: Vec<&str> = csv.lines().skip(2).collect();
     assert_eq!(lines.len(), total);
     let (_, rig) = SystemFile::load(&d.join("system.json")).unwrap();
     let method = deltaz_shared::rig::Method::ClosestApproach;
@@ -352,7 +360,7 @@ fn reconstruct_streams_across_batches() {
 /// `--strict` makes them an error and writes nothing.
 #[test]
 fn desk_rig_lists_left_out_images_and_rays() {
-    use deltaz_host::system::SystemFile;
+    use deltaz_host::io::system_file::SystemFile;
     use std::collections::BTreeMap;
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -11,9 +11,9 @@
 //! - IR dots: the counts before the detector was made robust (OpenCV's default blob detector
 //!   finds 4, 15 and 2 of them).
 
-use deltaz_host::measure::detect::Polarity;
-use deltaz_host::measure::grid::walk_grid;
-use deltaz_host::measure::{measure_file, MeasureParams, Measurement};
+use deltaz_measure::detect::Polarity;
+use deltaz_measure::grid::walk_grid;
+use deltaz_measure::{measure_file, MeasureParams, Measurement};
 use nalgebra::{DMatrix, DVector, Vector2};
 use std::path::PathBuf;
 
@@ -288,7 +288,7 @@ fn infrared_dots() {
 #[test]
 fn circle_grid_boards_labelled() {
     use deltaz_host::io::observations::read_observations;
-    use deltaz_host::measure::board::Board;
+    use deltaz_measure::board::Board;
     let Some(dir) = photos() else { return };
     let reference = include_str!("opencv_circle_grids.csv");
     let tmp = tempfile::tempdir().unwrap();
@@ -320,9 +320,13 @@ fn circle_grid_boards_labelled() {
         let mut params = MeasureParams::default();
         params.detect.polarity = Polarity::Dark;
         params.board = Some(board);
-        let obs = deltaz_host::measure::measure_images(std::slice::from_ref(&path), &params, None)
-            .unwrap()
-            .observations;
+        let obs = deltaz_host::workflows::observations::measure_images(
+            std::slice::from_ref(&path),
+            &params,
+            None,
+        )
+        .unwrap()
+        .observations;
         assert_eq!(obs.len(), opencv.len(), "{image}");
         // Our index of each OpenCV circle.
         let ours: Vec<usize> = opencv

@@ -3,15 +3,15 @@
 //! propagated from the measured image noise, and the command's files. The helpers here scan
 //! the other test objects too ([`crate::objects`]).
 
+use deltaz_calib::projector_calibration::DotObservation;
+use deltaz_calib::reconstruct::covariance;
 use deltaz_calib::system_adjustment::{Frame, PointShares, SystemModel};
-use deltaz_host::measure::{host_identifier, LoadedImage, MeasureParams};
-use deltaz_host::object_accuracy::{error_against_truth, AtFloor, ObjectPoint};
-use deltaz_host::projector_calibration::DotObservation;
-use deltaz_host::reconstruct::covariance;
-use deltaz_host::scan::{on_device, on_host, scan, FramePoints};
+use deltaz_host::io::system_file::SystemRig;
+use deltaz_host::report::object_accuracy::{error_against_truth, AtFloor, ObjectPoint};
 use deltaz_host::simulate::objects::{object_dots, object_frame, Object, ObjectDot};
 use deltaz_host::simulate::{images::true_rig, Scenario};
-use deltaz_host::system::SystemRig;
+use deltaz_host::workflows::scan::{on_device, on_host, scan, FramePoints};
+use deltaz_measure::{host_identifier, LoadedImage, MeasureParams};
 use deltaz_shared::identify::DepthRange;
 use deltaz_shared::rig::Method;
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -277,7 +277,7 @@ fn scan_command_files() {
     let csv = std::fs::read_to_string(d.join("all.csv")).unwrap();
     let frames: Vec<&str> = csv
         .lines()
-        .skip(1)
+        .skip(2)
         .map(|l| l.split(',').next().unwrap())
         .collect();
     let per_frame = |f: &str| frames.iter().filter(|&&x| x == f).count();
@@ -315,7 +315,7 @@ fn scan_command_files() {
         ),
         (Some(0), Some(0))
     );
-    let labels: Vec<String> = deltaz_host::ply::read_points(&d.join("clouds/scan.ply"))
+    let labels: Vec<String> = deltaz_host::io::ply::read_points(&d.join("clouds/scan.ply"))
         .unwrap()
         .into_iter()
         .map(|(label, _)| label)
@@ -323,7 +323,7 @@ fn scan_command_files() {
     let rows: Vec<String> = std::fs::read_to_string(d.join("one.csv"))
         .unwrap()
         .lines()
-        .skip(1)
+        .skip(2)
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
             assert_eq!(f[7], "0", "{l}");
@@ -333,7 +333,7 @@ fn scan_command_files() {
     assert_eq!(labels, rows);
     let host_rows: Vec<String> = csv
         .lines()
-        .skip(1)
+        .skip(2)
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
             format!("{}:{}", f[0], f[2])
@@ -362,7 +362,8 @@ fn scan_command_files() {
 }
 
 /// A frame's identification and intersection ([`on_host`], [`on_device`]).
-type Identify<'a> = dyn FnMut(&[(f64, f64)]) -> anyhow::Result<deltaz_host::scan::Identified> + 'a;
+type Identify<'a> =
+    dyn FnMut(&[(f64, f64)]) -> anyhow::Result<deltaz_host::workflows::scan::Identified> + 'a;
 
 /// Centroids as the wire carries them (1/2^bits px), exactly representable in f32 and f64.
 fn quantised(dots: &[(f64, f64)], bits: u8) -> Vec<(f64, f64)> {
@@ -378,17 +379,17 @@ fn quantised(dots: &[(f64, f64)], bits: u8) -> Vec<(f64, f64)> {
 /// The rig's identification for `depth`, on the host and uploaded to an in-process device (with
 /// the device's centroid bits).
 fn host_and_device(
-    rig: &deltaz_host::system::SystemRig,
+    rig: &deltaz_host::io::system_file::SystemRig,
     depth: DepthRange<f64>,
     cell: f64,
 ) -> (
-    Box<deltaz_host::measure::HostIdentifier>,
+    Box<deltaz_measure::HostIdentifier>,
     deltaz_host::link::Device<deltaz_host::link::InProcess>,
     u8,
 ) {
     let identifier = host_identifier(rig, depth, 1.0, cell).unwrap();
     let mut device = deltaz_host::link::Device::in_process();
-    let params = deltaz_host::scan::identify_params(depth, 1.0, cell);
+    let params = deltaz_host::workflows::scan::identify_params(depth, 1.0, cell);
     let summary = device
         .upload_identifying(rig, 11, Method::ClosestApproach, Some(params))
         .unwrap();
@@ -521,14 +522,14 @@ fn saturated_miss_flagged_and_off_sensor_dots_rejected() {
     .collect();
     dots.extend([(768.2, 100.0), (100.0, 512.0)]);
     let dots = quantised(&dots, bits);
-    let limit = deltaz_host::scan::miss_saturated_mm();
+    let limit = deltaz_host::link::miss_saturated_mm();
     let host = on_host(&rig, &identifier, Method::ClosestApproach)(&dots).unwrap();
     let dev = on_device(&rig, &mut device)(&dots).unwrap();
     assert_eq!((host.off_sensor, dev.off_sensor), (2, 2));
     assert_eq!(host.saturated_count(), 0, "the host's miss never saturates");
     let (mut flagged, mut clear) = (0, 0);
     for ((dot, p), &saturated) in dev.identified.iter().zip(&dev.points).zip(&dev.saturated) {
-        let truth = deltaz_host::reconstruct::reconstruct(
+        let truth = deltaz_calib::reconstruct::reconstruct(
             &rig,
             &[*dot],
             Method::ClosestApproach,

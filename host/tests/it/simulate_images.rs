@@ -2,9 +2,10 @@
 //! their true centres, and the plate's dots identified with the true rig.
 
 use deltaz_host::io::observations::{read_observations, PointKind};
-use deltaz_host::measure::{measure_file, measure_images, HostIdentifier, MeasureParams};
 use deltaz_host::simulate::images::{true_rig, write_images, ImageSpec};
 use deltaz_host::simulate::Scenario;
+use deltaz_host::workflows::observations::measure_images;
+use deltaz_measure::{measure_file, HostIdentifier, MeasureParams};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
 
 #[test]
@@ -150,7 +151,7 @@ fn paper_images_measured_and_identified() {
 /// grid from the larger marker dot. No wrong label, at least 99 % of the measured dots labelled.
 #[test]
 fn plate_dots_by_grid_topology() {
-    use deltaz_host::measure::grid::walk_grid;
+    use deltaz_measure::grid::walk_grid;
     use nalgebra::Vector2;
     let dir = tempfile::tempdir().unwrap();
     let scenario = Scenario::paper();

@@ -4,12 +4,12 @@
 //! the same adjustment (joint), the variance components, the datum, incomplete data.
 
 use deltaz_calib::system_adjustment::{Frame, SystemAdjustment};
-use deltaz_host::accuracy::{
+use deltaz_host::simulate::{simulate, Scenario, Simulation};
+use deltaz_host::workflows::accuracy::{
     adjust_simulation, adjust_simulation_joint, bundle_camera, calibrate_camera, no_snooping,
     system_against_truth,
 };
-use deltaz_host::camera_calibration::camera_prior;
-use deltaz_host::simulate::{simulate, Scenario, Simulation};
+use deltaz_host::workflows::camera::camera_prior;
 use deltaz_shared::rig::Method;
 use nalgebra::Vector3;
 
@@ -346,8 +346,8 @@ fn plate_frame_sigma_includes_the_transform() {
 }
 
 mod cli {
+    use deltaz_host::io::system_file::SystemFile;
     use deltaz_host::simulate::{simulate, write_simulation, Scenario};
-    use deltaz_host::system::SystemFile;
     use std::path::Path;
     use std::process::{Command, Output};
 
@@ -450,6 +450,7 @@ mod cli {
         };
         let csv = reconstruct("points", &[]);
         let mut lines = csv.lines();
+        assert!(lines.next().unwrap().contains("the camera system"));
         assert!(lines.next().unwrap().ends_with("sigma_X,sigma_Y,sigma_Z"));
         let mut count = 0;
         for line in lines {
@@ -473,7 +474,7 @@ mod cli {
         let mut on_plate = 0;
         for line in csv
             .lines()
-            .skip(1)
+            .skip(2)
             .filter(|l| l.starts_with(&format!("{datum},")))
         {
             let v: Vec<f64> = line
@@ -494,9 +495,9 @@ mod cli {
 /// too large), for every model.
 #[test]
 fn ray_covariances_follow_the_measured_noise() {
-    use deltaz_host::accuracy::plate_poses;
-    use deltaz_host::plates::plate_images;
-    use deltaz_host::projector_calibration::{calibrate_projector, Model};
+    use deltaz_calib::projector_calibration::{calibrate_projector, Model};
+    use deltaz_host::workflows::accuracy::plate_poses;
+    use deltaz_host::workflows::plates::plate_images;
     let mut scenario = Scenario::paper();
     scenario.noise.image_sigma_px = 0.05;
     let sim = simulate(&scenario, 3);

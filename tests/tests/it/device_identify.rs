@@ -3,8 +3,8 @@
 //! within 1 µm; in-process and over QEMU (the real firmware binary), with the instructions per
 //! point under `-icount shift=0`.
 
+use deltaz_host::io::system_file::SystemRig;
 use deltaz_host::link::{Device, DeviceError, Qemu, Transport, WorldPoint};
-use deltaz_host::system::SystemRig;
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier};
 use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::{Dot, ErrorCode, PointStatus};

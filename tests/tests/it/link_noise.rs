@@ -2,10 +2,10 @@
 //! noise the device answers with seq 0, stale answers from an earlier run. Streams and uploads
 //! complete with every point equal to the clean run; requests run once when nothing was lost.
 
+use deltaz_host::io::system_file::SystemRig;
 use deltaz_host::link::{Device, InProcess, LineCounts, PointOutcome, Transport};
 use deltaz_host::simulate::images::true_rig;
 use deltaz_host::simulate::Scenario;
-use deltaz_host::system::SystemRig;
 use deltaz_shared::protocol::{encode_frame, ErrorCode, Response, ResponseBody, WireError};
 use deltaz_tests::Rng;
 use std::io;

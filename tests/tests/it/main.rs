@@ -7,4 +7,5 @@ mod firmware_smoke;
 mod full_duplex;
 mod link_budget;
 mod link_noise;
+mod module_graph;
 mod upload_power_cut;

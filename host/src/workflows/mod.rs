@@ -1,0 +1,19 @@
+//! The chains from inputs to results, each written once, between the commands and the
+//! libraries: field → camera ([`camera`], [`board`]), plates → projector ([`plates`],
+//! [`projector`]), both → system ([`system`]), images → observations ([`observations`]), dots →
+//! points ([`reconstruct`], [`scan`], [`stream`] through a [`device`]), and the experiments on
+//! simulated rigs ([`accuracy`], [`bench`], [`demo`]).
+
+pub mod accuracy;
+pub mod bench;
+pub mod board;
+pub mod camera;
+pub mod demo;
+pub mod device;
+pub mod observations;
+pub mod plates;
+pub mod projector;
+pub mod reconstruct;
+pub mod scan;
+pub mod stream;
+pub mod system;
