@@ -141,12 +141,7 @@ fn raw_image_rms(cal: &BoardCalibration) -> f64 {
 #[test]
 fn board_calibration_matches_opencv() {
     let Some(dir) = photos() else { return };
-    let has_cv2 = std::process::Command::new("python3")
-        .args(["-c", "import cv2"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !has_cv2 {
-        println!("skipped: Python's cv2 is not installed");
+    if !deltaz_testkit::require_opencv() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

@@ -17,15 +17,9 @@ use deltaz_measure::{measure_file, MeasureParams, Measurement};
 use nalgebra::{DMatrix, DVector, Vector2};
 use std::path::PathBuf;
 
-/// The photo folder, or `None` (with a message) when it is absent.
+/// The photo folder, or `None` (a visible skip, [`deltaz_testkit::require`]) when it is absent.
 pub(super) fn photos() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/real-images");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        println!("skipped: no real photographs at {}", dir.display());
-        None
-    }
+    deltaz_testkit::shared_data("real-images")
 }
 
 fn measure_photo(path: &std::path::Path, polarity: Polarity) -> Measurement {
