@@ -1,0 +1,1 @@
+//! deltaz-surface's integration tests.
