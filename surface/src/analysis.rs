@@ -4,7 +4,11 @@
 //! Levels are sections across the trunk's axis, one dot spacing apart, where the measured
 //! trunk is at least [`MIN_WIDTH`] of its median width. At each, the symmetry point
 //! ([`crate::symmetry`]) over a window of a quarter of the median width either side, and from
-//! the surface there: the surface rotation atan(∂n/∂a), the depth, the sagittal slope
+//! the surface there: the surface rotation atan(∂n/∂a) as the section's mirror symmetry gives
+//! it (the tilt of its mirror axis from n: a section symmetric about that axis has the slope
+//! tan θ at its symmetry point, and the window's points measure it, not the slope at one
+//! point, which the lattice's sampling of the spinous groove would bias), the depth, the
+//! sagittal slope
 //! atan(∂n/∂v), the skin angle of two points 10 % of the line's length either side, and bent
 //! forward the scoliometer's angle ([`crate::scoliometer`]) over a third of the median width
 //! either side. Then along the line: its lateral deviation from the line through its ends, the
@@ -22,7 +26,7 @@ use crate::mesh::Mesh;
 use crate::scoliometer::resting_line;
 use crate::spline::{Grid, D};
 use crate::support::Support;
-use crate::symmetry::{coarse, distinctness, symmetry_at, Symmetry};
+use crate::symmetry::{coarse, symmetry_at, Symmetry};
 use crate::SurfaceError;
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
@@ -61,7 +65,7 @@ impl Options {
             vertical: None,
             up: None,
             axis: None,
-            smoothing: 1.0,
+            smoothing: 0.4,
         }
     }
 
@@ -379,7 +383,7 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     let margin = 2.0 * spacing;
     let (lo, hi) = ([lo[0] - margin, lo[1] - margin], [hi[0] + margin, hi[1] + margin]);
     let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
-    let step = spacing.max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1);
+    let step = (spacing / (frames.len() as f64).sqrt()).max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1);
     let grid = Grid::covering(lo, hi, step);
     let smoothing = options.smoothing * spacing;
     let lambda = (smoothing / step).powi(4) * (step / spacing).powi(2);
@@ -526,7 +530,7 @@ impl Measured<'_> {
 
     fn analyse(&self, spacing: f64) -> Result<BackAnalysis, SurfaceError> {
         let (runs, width) = self.levels(spacing)?;
-        let found = self.symmetry_line(&runs, width, spacing);
+        let found = self.symmetry_line(&runs, width);
         if found.len() < 3 {
             return Err(SurfaceError::NoLevels);
         }
@@ -542,16 +546,12 @@ impl Measured<'_> {
     }
 
     /// The symmetry line: each level's symmetry point over a window of a quarter of the median
-    /// width either side, searched for within a quarter of the width from the run's middle;
-    /// chained from the level whose best coarse minimum is most distinct, each next level
-    /// starting from the coarse candidates within half a level step (and at least a knot) of
-    /// the last point found.
-    fn symmetry_line(
-        &self,
-        runs: &[(f64, (f64, f64))],
-        width: f64,
-        spacing: f64,
-    ) -> Vec<(f64, Symmetry, (f64, f64))> {
+    /// width either side, searched for within a quarter of the width from the run's middle.
+    /// The levels are chained (a trunk's section is nearly circular, and an arc is mirror
+    /// symmetric about any of its normals): the coarse candidates of all levels are joined by
+    /// the path of least Σ ln(misfit) + Σ (Δx / Δv / [`LEAN`])², then each level is refined
+    /// within a knot of its path.
+    fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64) -> Vec<(f64, Symmetry, (f64, f64))> {
         let w = width / 4.0;
         let margin = self.fit.grid.step;
         let searched: Vec<_> = runs
@@ -560,43 +560,21 @@ impl Measured<'_> {
                 let mid = 0.5 * (lo + hi);
                 let range = ((mid - width / 4.0).max(lo + w + margin), (mid + width / 4.0).min(hi - w - margin));
                 let candidates = coarse(self.fit, v, w, range);
-                (range.0 < range.1 && !candidates.is_empty()).then_some((v, (lo, hi), range, candidates))
+                (range.0 < range.1 && !candidates.is_empty()).then_some((v, (lo, hi), candidates))
             })
             .collect();
-        let Some(start) = (0..searched.len()).max_by(|&i, &j| {
-            distinctness(&searched[i].3).total_cmp(&distinctness(&searched[j].3))
-        }) else {
-            return vec![];
-        };
-        let reach = (0.5 * spacing).max(margin);
-        let mut line: Vec<(f64, Symmetry, (f64, f64))> = Vec::new();
-        let mut solve = |k: usize, near: Option<f64>| {
-            let (v, run, range, candidates) = &searched[k];
-            let near = near.map_or(*range, |x| (x - reach, x + reach));
-            let s = symmetry_at(self.fit, *v, w, candidates, near, *range)?;
-            self.support
-                .covers(s.a - w - margin, s.a + w + margin, *v)
-                .then_some((*v, s, *run))
-        };
-        let Some(first) = solve(start, None) else {
-            return vec![];
-        };
-        let mut last = first.1.a;
-        line.push(first);
-        for k in start + 1..searched.len() {
-            if let Some(found) = solve(k, Some(last)) {
-                last = found.1.a;
-                line.push(found);
-            }
-        }
-        let mut last = line[0].1.a;
-        for k in (0..start).rev() {
-            if let Some(found) = solve(k, Some(last)) {
-                last = found.1.a;
-                line.insert(0, found);
-            }
-        }
-        line
+        let path = chain(&searched.iter().map(|(v, _, c)| (*v, c.as_slice())).collect::<Vec<_>>());
+        searched
+            .iter()
+            .zip(path)
+            .filter_map(|((v, run, candidates), x)| {
+                let near = (x - margin, x + margin);
+                let s = symmetry_at(self.fit, *v, w, candidates, near, near)?;
+                self.support
+                    .covers(s.a - w - margin, s.a + w + margin, *v)
+                    .then_some((*v, s, *run))
+            })
+            .collect()
     }
 
     fn level(
@@ -616,7 +594,10 @@ impl Measured<'_> {
             value: self.value(a, v, D::S),
             gradient: self.moving(a, v, D::S, D::A, ga),
         };
-        let rotation = Var::angle(self.value(a, v, D::A), self.moving(a, v, D::A, D::AA, ga));
+        let rotation = Var {
+            value: s.theta,
+            gradient: s.theta_gradient.clone(),
+        };
         let sagittal = Var::angle(self.value(a, v, D::V), self.moving(a, v, D::V, D::AV, ga));
         let skin = self.support.covers(a - skin_d, a + skin_d, v).then(|| {
             let g = self.moving(a + skin_d, v, D::S, D::A, ga) - self.moving(a - skin_d, v, D::S, D::A, ga);
@@ -822,6 +803,45 @@ impl Measured<'_> {
             },
         )
     }
+}
+
+/// The symmetry line's usual lean from the axis (lateral mm per mm along): steeper steps
+/// between levels cost as much as a misfit e times larger.
+const LEAN: f64 = 0.25;
+
+/// The path through each level's coarse candidates (x, misfit, _) of least
+/// Σ ln(misfit) + Σ ((x_k − x_{k−1}) / (v_k − v_{k−1}) / LEAN)² (dynamic programming).
+fn chain(levels: &[(f64, &[(f64, f64, f64)])]) -> Vec<f64> {
+    let cost = |c: &(f64, f64, f64)| c.1.max(1e-300).ln();
+    let mut total: Vec<Vec<f64>> = Vec::with_capacity(levels.len());
+    let mut from: Vec<Vec<usize>> = Vec::with_capacity(levels.len());
+    for (k, (v, candidates)) in levels.iter().enumerate() {
+        let row: Vec<(f64, usize)> = candidates
+            .iter()
+            .map(|c| match k {
+                0 => (cost(c), 0),
+                _ => {
+                    let (pv, prev) = levels[k - 1];
+                    let step = |j: usize| {
+                        let lean = (c.0 - prev[j].0) / (v - pv) / LEAN;
+                        total[k - 1][j] + lean * lean
+                    };
+                    let best = (0..prev.len()).min_by(|&i, &j| step(i).total_cmp(&step(j))).unwrap_or(0);
+                    (cost(c) + step(best), best)
+                }
+            })
+            .collect();
+        total.push(row.iter().map(|r| r.0).collect());
+        from.push(row.iter().map(|r| r.1).collect());
+    }
+    let Some(last) = total.last() else { return vec![] };
+    let mut j = (0..last.len()).min_by(|&a, &b| last[a].total_cmp(&last[b])).unwrap_or(0);
+    let mut path = vec![0.0; levels.len()];
+    for k in (0..levels.len()).rev() {
+        path[k] = levels[k].1[j].0;
+        j = from[k][j];
+    }
+    path
 }
 
 /// The value of largest magnitude (signed) with its gradient.

@@ -220,11 +220,6 @@ pub(crate) fn fit(
     let (a, _) = state.normal(&joint, &all);
     let normal = a.cholesky().ok_or(SurfaceError::Singular)?;
     let rows: Vec<Row> = samples.iter().filter_map(|s| state.row(s)).collect();
-    if std::env::var("DEBUG_FIT").is_ok() {
-        for (s, r) in samples.iter().zip(&rows) {
-            eprintln!("res {:.1} {:.1} {:.1} {:.3} {:.3}", s.p.x, s.p.y, s.p.z, r.r, r.w);
-        }
-    }
     Ok(Fit {
         grid,
         coeffs: state.coeffs,

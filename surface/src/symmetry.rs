@@ -22,6 +22,9 @@ const SAMPLES: usize = 24;
 pub(crate) struct Symmetry {
     pub a: f64,
     pub gradient: DVector<f64>,
+    /// The axis' tilt from n (rad, positive toward −a: the section's slope there is tan θ).
+    pub theta: f64,
+    pub theta_gradient: DVector<f64>,
 }
 
 struct Residual {
@@ -102,22 +105,6 @@ pub(crate) fn coarse(fit: &Fit, v: f64, w: f64, (lo, hi): (f64, f64)) -> Vec<(f6
         .collect()
 }
 
-/// How distinct the coarse search's best minimum is: the ratio of the next local minimum's
-/// misfit to the best's (infinite for a single minimum).
-pub(crate) fn distinctness(candidates: &[(f64, f64, f64)]) -> f64 {
-    let mut minima: Vec<f64> = candidates
-        .windows(3)
-        .filter(|w| w[1].1 <= w[0].1 && w[1].1 <= w[2].1)
-        .map(|w| w[1].1)
-        .collect();
-    minima.sort_by(f64::total_cmp);
-    match minima.as_slice() {
-        [] => 0.0,
-        [_] => f64::INFINITY,
-        [best, next, ..] => next / best.max(1e-300),
-    }
-}
-
 /// The symmetry point at level v with a window of half-width `w`: from the best of the coarse
 /// `candidates` within `near` (a from, a to), Gauss-Newton on the reflection, kept within
 /// [lo, hi].
@@ -160,12 +147,19 @@ pub(crate) fn symmetry_at(
     }
     let (inv, rows) = solved?;
     let mut gradient = fit.zero();
+    let mut theta_gradient = fit.zero();
     for (wt, r) in &rows {
-        // dx = −[(JᵀΩJ)⁻¹ JᵀΩ]₀ ∂r/∂c
-        let k = -(inv.row(0) * r.jp)[0] * wt;
+        // d(x, θ) = −(JᵀΩJ)⁻¹ JᵀΩ ∂r/∂c
+        let k = -(inv * r.jp) * *wt;
         for &(a, d, weight) in &r.terms {
-            fit.add(&mut gradient, a, v, d, k * weight);
+            fit.add(&mut gradient, a, v, d, k.x * weight);
+            fit.add(&mut theta_gradient, a, v, d, k.y * weight);
         }
     }
-    Some(Symmetry { a: x, gradient })
+    Some(Symmetry {
+        a: x,
+        gradient,
+        theta,
+        theta_gradient,
+    })
 }

@@ -70,7 +70,7 @@ impl Default for Trunk {
             paraspinal_offset: 32.0,
             paraspinal_width: 16.0,
             groove: 3.0,
-            groove_width: 8.0,
+            groove_width: 12.0,
             scapula: 7.0,
             scapula_offset: 90.0,
             kyphosis: 20.0,
