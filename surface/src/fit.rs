@@ -16,7 +16,9 @@
 
 use crate::spline::{Grid, Stencil, D};
 use crate::SurfaceError;
-use nalgebra::{Cholesky, DMatrix, DVector, Dyn, Matrix3, Rotation3, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
+use nalgebra_sparse::factorization::CscCholesky;
+use nalgebra_sparse::{CooMatrix, CscMatrix};
 
 /// A point in the analysis axes with its covariance and its common-share sensitivity.
 #[derive(Debug, Clone, PartialEq)]
@@ -65,7 +67,7 @@ pub(crate) struct Fit {
     pub coeffs: Vec<f64>,
     pub poses: Vec<Pose>,
     pub centre: Vector3<f64>,
-    normal: Cholesky<f64, Dyn>,
+    normal: CscCholesky<f64>,
     rows: Vec<Row>,
     common: DMatrix<f64>,
 }
@@ -88,7 +90,7 @@ struct State<'a> {
     poses: Vec<Pose>,
     centre: Vector3<f64>,
     samples: &'a [Sample],
-    penalty: DMatrix<f64>,
+    penalty: CooMatrix<f64>,
     lambda: f64,
 }
 
@@ -115,18 +117,19 @@ impl State<'_> {
         })
     }
 
-    /// The penalised normal equations over `which`, with only `frames`' samples.
-    fn normal(&self, which: &Unknowns, frames: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+    /// The penalised normal equations over `which`, with only `frames`' samples (sparse).
+    fn normal(&self, which: &Unknowns, frames: &[usize]) -> (CscMatrix<f64>, DVector<f64>) {
         let n = which.len(&self.grid);
         let m = if which.coeffs { self.grid.len() } else { 0 };
-        let mut a = DMatrix::zeros(n, n);
+        let mut a = CooMatrix::new(n, n);
         let mut b = DVector::zeros(n);
         let mut idx: Vec<(usize, f64)> = Vec::with_capacity(22);
         for s in self.samples.iter().filter(|s| frames.contains(&s.frame)) {
             let Some(row) = self.row(s) else { continue };
             idx.clear();
             if which.coeffs {
-                idx.extend(row.stencil.index.iter().zip(&row.stencil.weight).map(|(&i, &w)| (i, -w)));
+                let terms = row.stencil.index.iter().zip(&row.stencil.weight);
+                idx.extend(terms.map(|(&i, &w)| (i, -w)));
             }
             if let Some(k) = which.poses.iter().position(|&f| f == s.frame) {
                 idx.extend(row.pose.iter().enumerate().map(|(j, &d)| (m + 6 * k + j, d)));
@@ -134,27 +137,27 @@ impl State<'_> {
             for &(i, di) in &idx {
                 b[i] -= row.w * di * row.r;
                 for &(j, dj) in &idx {
-                    a[(i, j)] += row.w * di * dj;
+                    a.push(i, j, row.w * di * dj);
                 }
             }
         }
         if which.coeffs {
-            let c = DVector::from_column_slice(&self.coeffs);
-            let pc = &self.penalty * c;
-            for i in 0..m {
-                b[i] -= self.lambda * pc[i];
-                for j in 0..m {
-                    a[(i, j)] += self.lambda * self.penalty[(i, j)];
-                }
+            for (i, j, &p) in self.penalty.triplet_iter() {
+                a.push(i, j, self.lambda * p);
+                b[i] -= self.lambda * p * self.coeffs[j];
             }
         }
-        (a, b)
+        (CscMatrix::from(&a), b)
     }
 
     /// One Gauss-Newton step over `which`; returns the largest change.
     fn step(&mut self, which: &Unknowns, frames: &[usize]) -> Result<f64, SurfaceError> {
         let (a, b) = self.normal(which, frames);
-        let dx = a.cholesky().ok_or(SurfaceError::Singular)?.solve(&b);
+        let dx = CscCholesky::factor(&a)
+            .map_err(|_| SurfaceError::Singular)?
+            .solve(&b)
+            .column(0)
+            .into_owned();
         let m = if which.coeffs { self.grid.len() } else { 0 };
         for (c, d) in self.coeffs.iter_mut().zip(dx.iter().take(m)) {
             *c += d;
@@ -218,7 +221,7 @@ pub(crate) fn fit(
         state.step(&joint, &all)?;
     }
     let (a, _) = state.normal(&joint, &all);
-    let normal = a.cholesky().ok_or(SurfaceError::Singular)?;
+    let normal = CscCholesky::factor(&a).map_err(|_| SurfaceError::Singular)?;
     let rows: Vec<Row> = samples.iter().filter_map(|s| state.row(s)).collect();
     Ok(Fit {
         grid,
@@ -268,6 +271,7 @@ impl Fit {
     fn spread(&self, grads: &[DVector<f64>]) -> (DMatrix<f64>, DMatrix<f64>) {
         let k = grads.len();
         let z = self.normal.solve(&DMatrix::from_columns(grads));
+
         let m = self.grid.len();
         let mut y = DMatrix::zeros(self.rows.len(), k);
         let mut u = DMatrix::zeros(self.common.nrows(), k);
@@ -289,15 +293,6 @@ impl Fit {
             }
         }
         (y, u)
-    }
-
-    /// The covariance of the quantities whose gradients over the unknowns are `grads`.
-    pub fn covariance(&self, grads: &[DVector<f64>]) -> DMatrix<f64> {
-        if grads.is_empty() {
-            return DMatrix::zeros(0, 0);
-        }
-        let (y, u) = self.spread(grads);
-        y.transpose() * &y + u.transpose() * &self.common * u
     }
 
     /// The variances alone of the quantities whose gradients are `grads`.

@@ -1,7 +1,7 @@
 //! A uniform bicubic B-spline over a rectangle of the analysis plane (a across, v along the
 //! trunk), the smooth surface n = s(a, v) is fitted as.
 
-use nalgebra::DMatrix;
+use nalgebra_sparse::CooMatrix;
 
 /// The knot grid: `step` apart from `origin`, `cells` cells each way, `cells + 3` coefficients.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -11,7 +11,7 @@ pub(crate) struct Grid {
     pub cells: [usize; 2],
 }
 
-/// Which value of the surface: s, ∂s/∂a, ∂s/∂v, ∂²s/∂a², ∂²s/∂a∂v, ∂²s/∂v².
+/// Which value of the surface: s, ∂s/∂a, ∂s/∂v, ∂²s/∂a², ∂²s/∂a∂v.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum D {
     S,
@@ -19,7 +19,6 @@ pub(crate) enum D {
     V,
     AA,
     AV,
-    VV,
 }
 
 impl D {
@@ -31,7 +30,6 @@ impl D {
             D::V => (0, 1),
             D::AA => (2, 0),
             D::AV => (1, 1),
-            D::VV => (0, 2),
         }
     }
 }
@@ -119,14 +117,14 @@ impl Grid {
 
     /// The roughness penalty: the squared second differences of the coefficients, the
     /// thin-plate energy's discrete form (∂²/∂a², 2 ∂²/∂a∂v, ∂²/∂v²).
-    pub fn penalty(&self) -> DMatrix<f64> {
+    pub fn penalty(&self) -> CooMatrix<f64> {
         let [na, nv] = self.cells.map(|c| c + 3);
         let id = |i: usize, j: usize| i + na * j;
-        let mut p = DMatrix::zeros(self.len(), self.len());
+        let mut p = CooMatrix::new(self.len(), self.len());
         let mut add = |terms: &[(usize, f64)]| {
             for &(i, wi) in terms {
                 for &(j, wj) in terms {
-                    p[(i, j)] += wi * wj;
+                    p.push(i, j, wi * wj);
                 }
             }
         };
