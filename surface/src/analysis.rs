@@ -254,7 +254,10 @@ struct Back {
     spacing: f64,
 }
 
-fn find_back(frame: &Frame, index: usize) -> Result<(Vec<usize>, Vec<[usize; 3]>, f64), SurfaceError> {
+fn find_back(
+    frame: &Frame,
+    index: usize,
+) -> Result<(Vec<usize>, Vec<[usize; 3]>, f64), SurfaceError> {
     if frame.points.len() < MIN_POINTS {
         return Err(SurfaceError::TooFewPoints {
             frame: index,
@@ -283,7 +286,10 @@ fn find_back(frame: &Frame, index: usize) -> Result<(Vec<usize>, Vec<[usize; 3]>
 fn principal(points: impl Iterator<Item = Vector3<f64>> + Clone) -> (Matrix3<f64>, f64) {
     let n = points.clone().count() as f64;
     let mean = points.clone().sum::<Vector3<f64>>() / n;
-    let cov = points.map(|p| (p - mean) * (p - mean).transpose()).sum::<Matrix3<f64>>() / n;
+    let cov = points
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
     let e = SymmetricEigen::new(cov);
     let mut order = [0, 1, 2];
     order.sort_by(|&i, &j| e.eigenvalues[j].total_cmp(&e.eigenvalues[i]));
@@ -347,7 +353,11 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
         .enumerate()
         .map(|(k, f)| find_back(f, k))
         .collect::<Result<Vec<_>, _>>()?;
-    let first: Vec<Vector3<f64>> = found[0].0.iter().map(|&i| frames[0].points[i].position).collect();
+    let first: Vec<Vector3<f64>> = found[0]
+        .0
+        .iter()
+        .map(|&i| frames[0].points[i].position)
+        .collect();
     let axes = axes(options, &first)?;
     let rot = axes.matrix();
     let rot_d = DMatrix::from_fn(3, 3, |r, c| rot[(r, c)]);
@@ -381,13 +391,23 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     let spacing = backs[0].spacing;
     let (lo, hi) = bounds(&samples);
     let margin = 2.0 * spacing;
-    let (lo, hi) = ([lo[0] - margin, lo[1] - margin], [hi[0] + margin, hi[1] + margin]);
+    let (lo, hi) = (
+        [lo[0] - margin, lo[1] - margin],
+        [hi[0] + margin, hi[1] + margin],
+    );
     let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
-    let step = (spacing / (frames.len() as f64).sqrt()).max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1);
+    let step =
+        (spacing / (frames.len() as f64).sqrt()).max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1);
     let grid = Grid::covering(lo, hi, step);
     let smoothing = options.smoothing * spacing;
     let lambda = (smoothing / step).powi(4) * (step / spacing).powi(2);
-    let surface = fit(&samples, frames.len(), grid, lambda, frames[0].common.covariance())?;
+    let surface = fit(
+        &samples,
+        frames.len(),
+        grid,
+        lambda,
+        frames[0].common.covariance(),
+    )?;
     let mut support = Support::new(lo, hi, step / 4.0);
     for (k, b) in backs.iter().enumerate() {
         let pose = surface.poses[k];
@@ -415,8 +435,14 @@ fn bounds(samples: &[Sample]) -> ([f64; 2], [f64; 2]) {
         samples.iter().map(|s| s.p[k]).fold(start, f)
     };
     (
-        [fold(0, f64::min, f64::INFINITY), fold(1, f64::min, f64::INFINITY)],
-        [fold(0, f64::max, f64::NEG_INFINITY), fold(1, f64::max, f64::NEG_INFINITY)],
+        [
+            fold(0, f64::min, f64::INFINITY),
+            fold(1, f64::min, f64::INFINITY),
+        ],
+        [
+            fold(0, f64::max, f64::NEG_INFINITY),
+            fold(1, f64::max, f64::NEG_INFINITY),
+        ],
     )
 }
 
@@ -425,7 +451,12 @@ fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
     let points = b.kept.iter().map(|&i| b.positions[i]);
     let (_, rms) = principal(points.clone());
     let extent = |k: usize| {
-        let (lo, hi) = points.clone().map(|p| p[k]).fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(x), h.max(x)));
+        let (lo, hi) = points
+            .clone()
+            .map(|p| p[k])
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+                (l.min(x), h.max(x))
+            });
         hi - lo
     };
     let (width, length) = (extent(0), extent(1));
@@ -551,19 +582,31 @@ impl Measured<'_> {
     /// symmetric about any of its normals): the coarse candidates of all levels are joined by
     /// the path of least Σ ln(misfit) + Σ (Δx / Δv / [`LEAN`])², then each level is refined
     /// within a knot of its path.
-    fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64) -> Vec<(f64, Symmetry, (f64, f64))> {
+    fn symmetry_line(
+        &self,
+        runs: &[(f64, (f64, f64))],
+        width: f64,
+    ) -> Vec<(f64, Symmetry, (f64, f64))> {
         let w = width / 4.0;
         let margin = self.fit.grid.step;
         let searched: Vec<_> = runs
             .iter()
             .filter_map(|&(v, (lo, hi))| {
                 let mid = 0.5 * (lo + hi);
-                let range = ((mid - width / 4.0).max(lo + w + margin), (mid + width / 4.0).min(hi - w - margin));
-                let candidates = coarse(self.fit, v, w, range);
+                let range = (
+                    (mid - width / 4.0).max(lo + w + margin),
+                    (mid + width / 4.0).min(hi - w - margin),
+                );
+                let candidates = coarse(self.fit, v, w, range, (lo + margin, hi - margin));
                 (range.0 < range.1 && !candidates.is_empty()).then_some((v, (lo, hi), candidates))
             })
             .collect();
-        let path = chain(&searched.iter().map(|(v, _, c)| (*v, c.as_slice())).collect::<Vec<_>>());
+        let path = chain(
+            &searched
+                .iter()
+                .map(|(v, _, c)| (*v, c.as_slice()))
+                .collect::<Vec<_>>(),
+        );
         searched
             .iter()
             .zip(path)
@@ -600,7 +643,8 @@ impl Measured<'_> {
         };
         let sagittal = Var::angle(self.value(a, v, D::V), self.moving(a, v, D::V, D::AV, ga));
         let skin = self.support.covers(a - skin_d, a + skin_d, v).then(|| {
-            let g = self.moving(a + skin_d, v, D::S, D::A, ga) - self.moving(a - skin_d, v, D::S, D::A, ga);
+            let g = self.moving(a + skin_d, v, D::S, D::A, ga)
+                - self.moving(a - skin_d, v, D::S, D::A, ga);
             let rise = self.value(a + skin_d, v, D::S) - self.value(a - skin_d, v, D::S);
             Var::angle(rise / (2.0 * skin_d), g / (2.0 * skin_d))
         });
@@ -622,7 +666,13 @@ impl Measured<'_> {
         }
     }
 
-    fn summarise(&self, levels: Vec<LevelVars>, window: f64, skin_d: f64, spacing: f64) -> BackAnalysis {
+    fn summarise(
+        &self,
+        levels: Vec<LevelVars>,
+        window: f64,
+        skin_d: f64,
+        spacing: f64,
+    ) -> BackAnalysis {
         let n = levels.len();
         let (first, last) = (&levels[0], &levels[n - 1]);
         let span = last.v - first.v;
@@ -645,13 +695,17 @@ impl Measured<'_> {
         let rise = last.depth.value - first.depth.value;
         let inclination = Var {
             value: rise.atan2(span),
-            gradient: (&last.depth.gradient - &first.depth.gradient) * (span / (span * span + rise * rise)),
+            gradient: (&last.depth.gradient - &first.depth.gradient)
+                * (span / (span * span + rise * rise)),
         };
         let (kyphosis, lordosis) = match self.posture {
             Posture::Standing => sagittal_angles(&levels),
             Posture::ForwardBent => (None, None),
         };
-        let atrs: Vec<&Var> = levels.iter().filter_map(|l| l.atr.as_ref().map(|a| &a.0)).collect();
+        let atrs: Vec<&Var> = levels
+            .iter()
+            .filter_map(|l| l.atr.as_ref().map(|a| &a.0))
+            .collect();
         let atr_max = (!atrs.is_empty()).then(|| largest(&atrs));
         // Every σ in one propagation: per level x, depth, rotation, sagittal, deviation, skin, atr.
         let mut grads: Vec<DVector<f64>> = Vec::new();
@@ -689,8 +743,16 @@ impl Measured<'_> {
             lordosis.as_ref(),
             atr_max.as_ref(),
         ];
-        let scalar_slots: Vec<Option<usize>> = scalars.iter().map(|s| s.map(|s| slot(&s.gradient))).collect();
-        let sigma: Vec<f64> = self.fit.variances(&grads).iter().map(|v| v.max(0.0).sqrt()).collect();
+        let scalar_slots: Vec<Option<usize>> = scalars
+            .iter()
+            .map(|s| s.map(|s| slot(&s.gradient)))
+            .collect();
+        let sigma: Vec<f64> = self
+            .fit
+            .variances(&grads)
+            .iter()
+            .map(|v| v.max(0.0).sqrt())
+            .collect();
         let sd = |k: Option<usize>| k.map(|k| sigma[k]);
         let deg = f64::to_degrees;
         let out_levels = levels
@@ -761,11 +823,18 @@ impl Measured<'_> {
     /// the levels.
     fn maps(&self, levels: &[LevelVars]) -> (Map, Map) {
         let step = self.fit.grid.step;
-        let (lo, hi) = levels.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), l| {
-            let r = self.support.longest_run(l.v).unwrap_or((l.x.value, l.x.value));
-            (lo.min(r.0), hi.max(r.1))
-        });
-        let a: Vec<f64> = (0..=((hi - lo) / step).floor() as usize).map(|i| lo + i as f64 * step).collect();
+        let (lo, hi) = levels
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), l| {
+                let r = self
+                    .support
+                    .longest_run(l.v)
+                    .unwrap_or((l.x.value, l.x.value));
+                (lo.min(r.0), hi.max(r.1))
+            });
+        let a: Vec<f64> = (0..=((hi - lo) / step).floor() as usize)
+            .map(|i| lo + i as f64 * step)
+            .collect();
         let mut asym = Vec::new();
         let mut grads = Vec::new();
         let mut depth = Vec::new();
@@ -777,14 +846,20 @@ impl Measured<'_> {
                 if on && self.support.contains(mirror, l.v) {
                     let g = self.moving(x, l.v, D::S, D::A, &DVector::zeros(self.fit.unknowns()))
                         - self.moving(mirror, l.v, D::S, D::A, &(&l.x.gradient * 2.0));
-                    asym.push(Some(self.value(x, l.v, D::S) - self.value(mirror, l.v, D::S)));
+                    asym.push(Some(
+                        self.value(x, l.v, D::S) - self.value(mirror, l.v, D::S),
+                    ));
                     grads.push(g);
                 } else {
                     asym.push(None);
                 }
             }
         }
-        let mut sigma = self.fit.variances(&grads).into_iter().map(|v| v.max(0.0).sqrt());
+        let mut sigma = self
+            .fit
+            .variances(&grads)
+            .into_iter()
+            .map(|v| v.max(0.0).sqrt());
         let sigmas = asym.iter().map(|x| x.and_then(|_| sigma.next())).collect();
         let v: Vec<f64> = levels.iter().map(|l| l.v).collect();
         let cells = depth.len();
@@ -826,7 +901,9 @@ fn chain(levels: &[(f64, &[(f64, f64, f64)])]) -> Vec<f64> {
                         let lean = (c.0 - prev[j].0) / (v - pv) / LEAN;
                         total[k - 1][j] + lean * lean
                     };
-                    let best = (0..prev.len()).min_by(|&i, &j| step(i).total_cmp(&step(j))).unwrap_or(0);
+                    let best = (0..prev.len())
+                        .min_by(|&i, &j| step(i).total_cmp(&step(j)))
+                        .unwrap_or(0);
                     (cost(c) + step(best), best)
                 }
             })
@@ -834,8 +911,12 @@ fn chain(levels: &[(f64, &[(f64, f64, f64)])]) -> Vec<f64> {
         total.push(row.iter().map(|r| r.0).collect());
         from.push(row.iter().map(|r| r.1).collect());
     }
-    let Some(last) = total.last() else { return vec![] };
-    let mut j = (0..last.len()).min_by(|&a, &b| last[a].total_cmp(&last[b])).unwrap_or(0);
+    let Some(last) = total.last() else {
+        return vec![];
+    };
+    let mut j = (0..last.len())
+        .min_by(|&a, &b| last[a].total_cmp(&last[b]))
+        .unwrap_or(0);
     let mut path = vec![0.0; levels.len()];
     for k in (0..levels.len()).rev() {
         path[k] = levels[k].1[j].0;
@@ -875,7 +956,8 @@ fn sagittal_angles(levels: &[LevelVars]) -> (Option<Var>, Option<Var>) {
     let Some(itl) = (0..levels.len()).max_by(|&i, &j| slope(i).total_cmp(&slope(j))) else {
         return (None, None);
     };
-    let least = |range: std::ops::Range<usize>| range.min_by(|&i, &j| slope(i).total_cmp(&slope(j)));
+    let least =
+        |range: std::ops::Range<usize>| range.min_by(|&i, &j| slope(i).total_cmp(&slope(j)));
     let angle = |other: Option<usize>| {
         other.map(|o| Var {
             value: slope(itl) - slope(o),

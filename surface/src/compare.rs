@@ -76,7 +76,11 @@ fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
     if l1.y - l0.y > gap {
         return None;
     }
-    let t = if l1.y > l0.y { (y - l0.y) / (l1.y - l0.y) } else { 0.0 };
+    let t = if l1.y > l0.y {
+        (y - l0.y) / (l1.y - l0.y)
+    } else {
+        0.0
+    };
     let ((v0, s0), (v1, s1)) = (f(l0), f(l1));
     Some((v0 + t * (v1 - v0), s0 + t * (s1 - s0)))
 }
@@ -84,15 +88,21 @@ fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
 /// Compares two analyses of one subject (`before`, then `after`).
 pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
     let pairs: [(&str, fn(&BackAnalysis) -> Option<(f64, f64)>); 9] = [
-        ("rotation_max_deg", |a| Some((a.rotation_max_deg, a.rotation_max_deg_sigma))),
-        ("rotation_rms_deg", |a| Some((a.rotation_rms_deg, a.rotation_rms_deg_sigma))),
+        ("rotation_max_deg", |a| {
+            Some((a.rotation_max_deg, a.rotation_max_deg_sigma))
+        }),
+        ("rotation_rms_deg", |a| {
+            Some((a.rotation_rms_deg, a.rotation_rms_deg_sigma))
+        }),
         ("lateral_deviation_max_mm", |a| {
             Some((a.lateral_deviation_max_mm, a.lateral_deviation_max_mm_sigma))
         }),
         ("lateral_deviation_rms_mm", |a| {
             Some((a.lateral_deviation_rms_mm, a.lateral_deviation_rms_mm_sigma))
         }),
-        ("trunk_imbalance_mm", |a| Some((a.trunk_imbalance_mm, a.trunk_imbalance_mm_sigma))),
+        ("trunk_imbalance_mm", |a| {
+            Some((a.trunk_imbalance_mm, a.trunk_imbalance_mm_sigma))
+        }),
         ("trunk_inclination_deg", |a| {
             Some((a.trunk_inclination_deg, a.trunk_inclination_deg_sigma))
         }),
@@ -108,13 +118,16 @@ pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
     let profiles: [(&str, Profile); 3] = [
         ("symmetry_x", |l| (l.symmetry_x, l.symmetry_x_sigma)),
         ("rotation_deg", |l| (l.rotation_deg, l.rotation_sigma_deg)),
-        ("lateral_deviation_mm", |l| (l.lateral_deviation_mm, l.lateral_deviation_sigma_mm)),
+        ("lateral_deviation_mm", |l| {
+            (l.lateral_deviation_mm, l.lateral_deviation_sigma_mm)
+        }),
     ];
     let levels = before
         .levels
         .iter()
         .filter_map(|l| {
-            let [x, r, d] = profiles.map(|(name, f)| Some(change(name, f(l), at(&after.levels, l.y, gap, f)?)));
+            let [x, r, d] =
+                profiles.map(|(name, f)| Some(change(name, f(l), at(&after.levels, l.y, gap, f)?)));
             Some(LevelChange {
                 y: l.y,
                 symmetry_x: x?,

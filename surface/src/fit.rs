@@ -132,7 +132,12 @@ impl State<'_> {
                 idx.extend(terms.map(|(&i, &w)| (i, -w)));
             }
             if let Some(k) = which.poses.iter().position(|&f| f == s.frame) {
-                idx.extend(row.pose.iter().enumerate().map(|(j, &d)| (m + 6 * k + j, d)));
+                idx.extend(
+                    row.pose
+                        .iter()
+                        .enumerate()
+                        .map(|(j, &d)| (m + 6 * k + j, d)),
+                );
             }
             for &(i, di) in &idx {
                 b[i] -= row.w * di * row.r;
@@ -183,8 +188,17 @@ pub(crate) fn fit(
     common: DMatrix<f64>,
 ) -> Result<Fit, SurfaceError> {
     let n = samples.len() as f64;
-    let centre = samples.iter().filter(|s| s.frame == 0).map(|s| s.p).sum::<Vector3<f64>>() / n;
-    let mean_weight = samples.iter().map(|s| 1.0 / s.cov[(2, 2)].max(1e-12)).sum::<f64>() / n;
+    let centre = samples
+        .iter()
+        .filter(|s| s.frame == 0)
+        .map(|s| s.p)
+        .sum::<Vector3<f64>>()
+        / n;
+    let mean_weight = samples
+        .iter()
+        .map(|s| 1.0 / s.cov[(2, 2)].max(1e-12))
+        .sum::<f64>()
+        / n;
     let mut state = State {
         grid,
         coeffs: vec![0.0; grid.len()],

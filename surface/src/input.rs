@@ -129,7 +129,10 @@ impl Frame {
         let mut seen = HashMap::new();
         for (i, p) in self.points.iter().enumerate() {
             if let Some(first) = seen.insert(p.ray, i) {
-                return Err(bad(i, &format!("its ray {:?} is point {first}'s too", p.ray)));
+                return Err(bad(
+                    i,
+                    &format!("its ray {:?} is point {first}'s too", p.ray),
+                ));
             }
         }
         Ok(())

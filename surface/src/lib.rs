@@ -102,7 +102,10 @@ impl std::fmt::Display for SurfaceError {
                 problem,
             } => write!(f, "frame {frame}, point {point}: {problem}"),
             SurfaceError::BadCommonShare { frame, problem } => {
-                write!(f, "frame {frame}: the calibration's common share does not fit: {problem}")
+                write!(
+                    f,
+                    "frame {frame}: the calibration's common share does not fit: {problem}"
+                )
             }
             SurfaceError::MixedCalibrations { frame, first, this } => {
                 let name = |c: &Option<u64>| c.map_or("none".to_string(), |c| format!("{c:016x}"));
@@ -118,7 +121,10 @@ impl std::fmt::Display for SurfaceError {
                 frame,
                 points,
                 needed,
-            } => write!(f, "frame {frame} has {points} points, a back needs at least {needed}"),
+            } => write!(
+                f,
+                "frame {frame} has {points} points, a back needs at least {needed}"
+            ),
             SurfaceError::NoBack { frame, problem } => {
                 write!(f, "frame {frame}: no back in view: {problem}")
             }

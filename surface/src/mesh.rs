@@ -31,7 +31,8 @@ impl Mesh {
     /// shorter diagonal); triangles with an edge beyond [`JUMP`] × the median edge or seen
     /// more obliquely than [`OBLIQUE`] from the camera (at the origin) are left out.
     pub fn over_lattice(points: &[Vector3<f64>], rays: &[[i32; 2]]) -> Self {
-        let node: HashMap<[i32; 2], usize> = rays.iter().enumerate().map(|(i, r)| (*r, i)).collect();
+        let node: HashMap<[i32; 2], usize> =
+            rays.iter().enumerate().map(|(i, r)| (*r, i)).collect();
         let at = |i: i32, j: i32| node.get(&[i, j]).copied();
         let mut edges: Vec<f64> = Vec::new();
         for (k, &[i, j]) in rays.iter().enumerate() {
@@ -68,7 +69,9 @@ impl Mesh {
                 let sight = (a + b + c).normalize();
                 normal.dot(&sight).abs() >= OBLIQUE.cos() * normal.norm()
             };
-            let kept = candidates.into_iter().filter(|t| longest(t) <= JUMP * spacing && facing(t));
+            let kept = candidates
+                .into_iter()
+                .filter(|t| longest(t) <= JUMP * spacing && facing(t));
             triangles.extend(kept);
         }
         Self {
@@ -122,7 +125,10 @@ impl Mesh {
             v.dedup();
             v
         };
-        let Some(best) = members.values().max_by_key(|tris| (vertices(tris).len(), std::cmp::Reverse(tris[0]))) else {
+        let Some(best) = members
+            .values()
+            .max_by_key(|tris| (vertices(tris).len(), std::cmp::Reverse(tris[0])))
+        else {
             return (vec![], vec![]);
         };
         let kept = vertices(best);

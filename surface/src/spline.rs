@@ -43,7 +43,11 @@ pub(crate) struct Stencil {
 
 impl Stencil {
     pub fn apply(&self, c: &[f64]) -> f64 {
-        self.index.iter().zip(&self.weight).map(|(&i, w)| c[i] * w).sum()
+        self.index
+            .iter()
+            .zip(&self.weight)
+            .map(|(&i, w)| c[i] * w)
+            .sum()
     }
 }
 

@@ -102,7 +102,8 @@ impl Support {
 
     /// The range of v over which the mask holds anything.
     pub fn rows(&self) -> Option<(f64, f64)> {
-        let filled = |j: &usize| self.mask[self.size[0] * j..self.size[0] * (j + 1)].contains(&true);
+        let filled =
+            |j: &usize| self.mask[self.size[0] * j..self.size[0] * (j + 1)].contains(&true);
         let first = (0..self.size[1]).find(filled)?;
         let last = (0..self.size[1]).rev().find(filled)?;
         let v = |j: usize| self.origin[1] + j as f64 * self.cell;

@@ -79,28 +79,40 @@ fn offsets(w: f64) -> impl Iterator<Item = (f64, f64)> {
     })
 }
 
-/// The odd part's misfit at x after a linear term (the criterion of the coarse search) and
-/// the linear term's slope.
+/// The odd part's misfit at x after a linear term, per unit weight (the criterion of the
+/// coarse search), and the linear term's slope.
 fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
-    let (mut dd, mut dt, mut tt) = (0.0, 0.0, 0.0);
+    let (mut dd, mut dt, mut tt, mut total) = (0.0, 0.0, 0.0, 0.0);
     for (t, wt) in offsets(w).filter(|(t, _)| *t > 0.0) {
         let d = fit.value(x + t, v, D::S)? - fit.value(x - t, v, D::S)?;
         dd += wt * d * d;
         dt += wt * d * t;
         tt += wt * t * t;
+        total += wt;
     }
-    Some((dd - dt * dt / tt, dt / (2.0 * tt)))
+    Some(((dd - dt * dt / tt) / total, dt / (2.0 * tt)))
 }
 
-/// The coarse search over [lo, hi] (a quarter knot apart): each candidate's odd-part misfit
-/// and its linear term's slope.
-pub(crate) fn coarse(fit: &Fit, v: f64, w: f64, (lo, hi): (f64, f64)) -> Vec<(f64, f64, f64)> {
+/// The coarse search over [lo, hi] (a quarter knot apart) in a section measured over `run`:
+/// each candidate's odd-part misfit over the window times that over the widest window up to
+/// twice as wide the run allows (a paraspinal muscle's crest looks symmetric close by, the
+/// trunk about it does not), and the window's linear term's slope.
+pub(crate) fn coarse(
+    fit: &Fit,
+    v: f64,
+    w: f64,
+    (lo, hi): (f64, f64),
+    run: (f64, f64),
+) -> Vec<(f64, f64, f64)> {
     let step = fit.grid.step / 4.0;
     let count = ((hi - lo) / step).floor() as usize;
     (0..=count)
         .filter_map(|k| {
             let x = lo + k as f64 * step;
-            odd_misfit(fit, v, x, w).map(|(e, b)| (x, e, b))
+            let wide = (2.0 * w).min(x - run.0).min(run.1 - x).max(w);
+            let (e, b) = odd_misfit(fit, v, x, w)?;
+            let (e_wide, _) = odd_misfit(fit, v, x, wide)?;
+            Some((x, e * e_wide, b))
         })
         .collect()
 }

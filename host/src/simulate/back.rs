@@ -303,7 +303,9 @@ impl BackModel {
     fn along(&self, v: f64, amplitude: impl Fn(&Curve) -> f64) -> f64 {
         let f = v / self.trunk.length;
         let curves = self.deformity.curves.iter();
-        curves.map(|c| amplitude(c) * gauss(f - c.apex, c.extent)).sum()
+        curves
+            .map(|c| amplitude(c) * gauss(f - c.apex, c.extent))
+            .sum()
     }
 
     /// Half-width of the section at v.
@@ -437,7 +439,10 @@ impl BackModel {
             r.inverse() * dir.normalize()
         });
         let back = self.hit_back(&o, &d);
-        let arms = self.arms().into_iter().filter_map(|axis| self.hit_arm(&o, &d, axis));
+        let arms = self
+            .arms()
+            .into_iter()
+            .filter_map(|axis| self.hit_arm(&o, &d, axis));
         let (_, p, normal, part) = back
             .into_iter()
             .chain(arms)
@@ -521,7 +526,11 @@ impl BackModel {
     /// The exact surface's depth n at (a, v) of `axes` (the first surface met coming from the
     /// camera's side along −up); None off the body.
     pub fn depth(&self, axes: &Axes, a: f64, v: f64) -> Option<f64> {
-        let start = axes.point(a, v, axes.up.dot(&Vector3::new(0.0, 0.0, -self.distance)) + 600.0);
+        let start = axes.point(
+            a,
+            v,
+            axes.up.dot(&Vector3::new(0.0, 0.0, -self.distance)) + 600.0,
+        );
         let hit = self.hit(&start, &-axes.up)?;
         Some(axes.up.dot(&hit.point))
     }

@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 pub fn folder() -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/real-backs");
     let alt = PathBuf::from("/work/shared/real-backs");
-    [dir, alt].into_iter().find(|d| d.join("cobb_angles.csv").is_file())
+    [dir, alt]
+        .into_iter()
+        .find(|d| d.join("cobb_angles.csv").is_file())
 }
 
 /// The vertices of a binary little-endian PLY whose vertices start with float x, y, z.
@@ -22,9 +24,13 @@ pub fn read_ply(path: &Path) -> Result<Vec<Vector3<f64>>, String> {
         .position(|w| w == end)
         .ok_or_else(|| format!("{}: no end_header", path.display()))?
         + end.len();
-    let header = std::str::from_utf8(&bytes[..body]).map_err(|e| format!("{}: {e}", path.display()))?;
+    let header =
+        std::str::from_utf8(&bytes[..body]).map_err(|e| format!("{}: {e}", path.display()))?;
     if !header.contains("format binary_little_endian 1.0") {
-        return Err(format!("{}: not a binary little-endian PLY", path.display()));
+        return Err(format!(
+            "{}: not a binary little-endian PLY",
+            path.display()
+        ));
     }
     let mut count = 0usize;
     let mut properties = 0usize;
@@ -33,20 +39,28 @@ pub fn read_ply(path: &Path) -> Result<Vec<Vector3<f64>>, String> {
         let words: Vec<&str> = line.split_whitespace().collect();
         match words.as_slice() {
             ["element", "vertex", n] => {
-                count = n.parse().map_err(|_| format!("{}: bad vertex count {n}", path.display()))?;
+                count = n
+                    .parse()
+                    .map_err(|_| format!("{}: bad vertex count {n}", path.display()))?;
                 in_vertex = true;
             }
             ["element", ..] => in_vertex = false,
             ["property", "float", _] if in_vertex => properties += 1,
             ["property", ..] if in_vertex => {
-                return Err(format!("{}: only float vertex properties are read ({line})", path.display()))
+                return Err(format!(
+                    "{}: only float vertex properties are read ({line})",
+                    path.display()
+                ))
             }
             _ => {}
         }
     }
     let stride = 4 * properties;
     if properties < 3 || bytes.len() < body + count * stride {
-        return Err(format!("{}: {count} vertices of {properties} floats do not fit", path.display()));
+        return Err(format!(
+            "{}: {count} vertices of {properties} floats do not fit",
+            path.display()
+        ));
     }
     let f = |o: usize| f64::from(f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()));
     Ok((0..count)

@@ -1,7 +1,7 @@
 //! The back model's dots as a scan gives them: each dot's own noise (σ mostly along the
 //! camera's line of sight) and the calibration's error common to all points of a scan.
 
-use deltaz_host::simulate::back::{Axes, BackModel, Lattice, LatticeDot, Part};
+use deltaz_host::simulate::back::{Axes, BackModel, Lattice, LatticeDot};
 use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use rand::SeedableRng;
@@ -56,7 +56,12 @@ pub fn common_draw(noise: &Noise, rng: &mut ChaCha8Rng) -> DVector<f64> {
 
 /// The dots on the back (the arms too) measured: true point + own noise + G δ; `calibration`
 /// is the fingerprint.
-pub fn frame(dots: &[LatticeDot], noise: &Noise, delta: &DVector<f64>, rng: &mut ChaCha8Rng) -> Frame {
+pub fn frame(
+    dots: &[LatticeDot],
+    noise: &Noise,
+    delta: &DVector<f64>,
+    rng: &mut ChaCha8Rng,
+) -> Frame {
     let mut g_all = DMatrix::zeros(3 * dots.len(), 4);
     let points = dots
         .iter()
@@ -65,8 +70,12 @@ pub fn frame(dots: &[LatticeDot], noise: &Noise, delta: &DVector<f64>, rng: &mut
             let p = d.hit.point;
             let sight = p.normalize();
             let along = sight * sight.transpose();
-            let cov = along * noise.depth.powi(2) + (Matrix3::identity() - along) * noise.lateral.powi(2);
-            let own = cov.cholesky().unwrap().l() * Vector3::from_fn(|_, _| <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng));
+            let cov =
+                along * noise.depth.powi(2) + (Matrix3::identity() - along) * noise.lateral.powi(2);
+            let own = cov.cholesky().unwrap().l()
+                * Vector3::from_fn(|_, _| {
+                    <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng)
+                });
             let g = sensitivity(&p);
             g_all.rows_mut(3 * i, 3).copy_from(&g);
             let common = &g * delta;
@@ -95,11 +104,6 @@ pub fn rng(seed: u64) -> ChaCha8Rng {
 /// The dots a projector lattice `spacing` apart puts on `model`, the back's only.
 pub fn back_dots(model: &BackModel, spacing: f64) -> Vec<LatticeDot> {
     model.sample(&Lattice::beside_camera(spacing))
-}
-
-/// Whether any dot lies on an arm.
-pub fn on_arms(dots: &[LatticeDot]) -> usize {
-    dots.iter().filter(|d| d.hit.part == Part::Arm).count()
 }
 
 /// Error and error/σ of an index over draws.
@@ -179,15 +183,28 @@ impl IndexErrors {
         let axes = axes_of(a);
         let mut truth = Vec::new();
         for l in &a.levels {
-            let (x, n) = model.symmetry_point(&axes, l.y).expect("truth at the level");
-            let rotation = model.rotation(&axes, l.y).expect("truth at the level").to_degrees();
+            let (x, n) = model
+                .symmetry_point(&axes, l.y)
+                .expect("truth at the level");
+            let rotation = model
+                .rotation(&axes, l.y)
+                .expect("truth at the level")
+                .to_degrees();
             self.symmetry_x.push(l.symmetry_x - x, l.symmetry_x_sigma);
-            self.rotation.push(l.rotation_deg - rotation, l.rotation_sigma_deg);
+            self.rotation
+                .push(l.rotation_deg - rotation, l.rotation_sigma_deg);
             if let (Some(s), Some(sd)) = (l.skin_angle_deg, l.skin_angle_sigma_deg) {
-                let t = model.skin_angle(&axes, l.y, a.skin_angle_distance_mm).unwrap();
+                let t = model
+                    .skin_angle(&axes, l.y, a.skin_angle_distance_mm)
+                    .unwrap();
                 self.skin_angle.push(s - t.to_degrees(), sd);
             }
-            let atr = l.atr_window.map(|w| model.scoliometer(&axes, l.y, (w[0], w[1])).unwrap().to_degrees());
+            let atr = l.atr_window.map(|w| {
+                model
+                    .scoliometer(&axes, l.y, (w[0], w[1]))
+                    .unwrap()
+                    .to_degrees()
+            });
             if let (Some(t), Some(e), Some(sd)) = (atr, l.atr_deg, l.atr_sigma_deg) {
                 self.atr.push(e - t, sd);
             }
@@ -198,16 +215,26 @@ impl IndexErrors {
             let f = (t.0 - first.0) / (last.0 - first.0);
             t.1 - (1.0 - f) * first.1 - f * last.1
         });
-        self.rotation_max.push(a.rotation_max_deg - largest(truth.iter().map(|t| t.3)), a.rotation_max_deg_sigma);
+        self.rotation_max.push(
+            a.rotation_max_deg - largest(truth.iter().map(|t| t.3)),
+            a.rotation_max_deg_sigma,
+        );
         self.lateral_deviation_max.push(
             a.lateral_deviation_max_mm - largest(deviation),
             a.lateral_deviation_max_mm_sigma,
         );
-        self.trunk_imbalance.push(a.trunk_imbalance_mm - (last.1 - first.1), a.trunk_imbalance_mm_sigma);
+        self.trunk_imbalance.push(
+            a.trunk_imbalance_mm - (last.1 - first.1),
+            a.trunk_imbalance_mm_sigma,
+        );
         let inclination = (last.2 - first.2).atan2(last.0 - first.0).to_degrees();
-        self.trunk_inclination.push(a.trunk_inclination_deg - inclination, a.trunk_inclination_deg_sigma);
+        self.trunk_inclination.push(
+            a.trunk_inclination_deg - inclination,
+            a.trunk_inclination_deg_sigma,
+        );
         if let (Some(m), Some(sd)) = (a.atr_max_deg, a.atr_max_deg_sigma) {
-            self.atr_max.push(m - largest(truth.iter().filter_map(|t| t.4)), sd);
+            self.atr_max
+                .push(m - largest(truth.iter().filter_map(|t| t.4)), sd);
         }
         self.largest_rotation.push(a.rotation_max_deg.abs());
     }
@@ -215,15 +242,25 @@ impl IndexErrors {
 
 /// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), each
 /// with its own noise and common error, analysed with `options`.
-pub fn scans(models: &[BackModel], spacing: f64, draws: u64, seed: u64, options: &Options) -> IndexErrors {
+pub fn scans(
+    models: &[BackModel],
+    spacing: f64,
+    draws: u64,
+    seed: u64,
+    options: &Options,
+) -> IndexErrors {
     let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
     let noise = Noise::issue();
     let mut errors = IndexErrors::default();
     for k in 0..draws {
         let mut r = rng(seed + k);
         let delta = common_draw(&noise, &mut r);
-        let frames: Vec<Frame> = dots.iter().map(|d| frame(d, &noise, &delta, &mut r)).collect();
-        let a = analyse(&frames, options).unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
+        let frames: Vec<Frame> = dots
+            .iter()
+            .map(|d| frame(d, &noise, &delta, &mut r))
+            .collect();
+        let a = analyse(&frames, options)
+            .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
         errors.add(&models[0], &a);
     }
     errors
