@@ -254,10 +254,11 @@ struct Back {
     spacing: f64,
 }
 
-fn find_back(
-    frame: &Frame,
-    index: usize,
-) -> Result<(Vec<usize>, Vec<[usize; 3]>, f64), SurfaceError> {
+/// A frame's back piece: its points, its triangles and the dot spacing.
+type Piece = (Vec<usize>, Vec<[usize; 3]>, f64);
+
+/// The back in a frame: the largest smooth piece of its lattice mesh.
+fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceError> {
     if frame.points.len() < MIN_POINTS {
         return Err(SurfaceError::TooFewPoints {
             frame: index,
@@ -495,6 +496,11 @@ fn sway(fit: &Fit) -> Vec<Sway> {
         .collect()
 }
 
+/// A level and the run (a from, a to) of measured surface along it.
+type Run = (f64, (f64, f64));
+/// A coarse candidate: position, misfit, slope.
+type Candidate = (f64, f64, f64);
+
 /// The fitted surface with where it was measured.
 struct Measured<'a> {
     fit: &'a Fit,
@@ -542,10 +548,10 @@ impl Measured<'_> {
 
     /// The levels: one dot spacing apart, where the trunk is at least MIN_WIDTH of its
     /// median width, with the run of measured surface at each.
-    fn levels(&self, spacing: f64) -> Result<(Vec<(f64, (f64, f64))>, f64), SurfaceError> {
+    fn levels(&self, spacing: f64) -> Result<(Vec<Run>, f64), SurfaceError> {
         let (v0, v1) = self.support.rows().ok_or(SurfaceError::NoLevels)?;
         let count = ((v1 - v0) / spacing).floor() as usize;
-        let runs: Vec<(f64, (f64, f64))> = (1..count)
+        let runs: Vec<Run> = (1..count)
             .map(|k| v0 + k as f64 * spacing)
             .filter_map(|v| self.support.longest_run(v).map(|r| (v, r)))
             .collect();
@@ -886,8 +892,8 @@ const LEAN: f64 = 0.25;
 
 /// The path through each level's coarse candidates (x, misfit, _) of least
 /// Σ ln(misfit) + Σ ((x_k − x_{k−1}) / (v_k − v_{k−1}) / LEAN)² (dynamic programming).
-fn chain(levels: &[(f64, &[(f64, f64, f64)])]) -> Vec<f64> {
-    let cost = |c: &(f64, f64, f64)| c.1.max(1e-300).ln();
+fn chain(levels: &[(f64, &[Candidate])]) -> Vec<f64> {
+    let cost = |c: &Candidate| c.1.max(1e-300).ln();
     let mut total: Vec<Vec<f64>> = Vec::with_capacity(levels.len());
     let mut from: Vec<Vec<usize>> = Vec::with_capacity(levels.len());
     for (k, (v, candidates)) in levels.iter().enumerate() {

@@ -68,6 +68,7 @@ fn change(name: &str, before: (f64, f64), after: (f64, f64)) -> Change {
 }
 
 type Profile = fn(&Level) -> (f64, f64);
+type Index = fn(&BackAnalysis) -> Option<(f64, f64)>;
 
 /// `after`'s profile interpolated at level y (None outside it or across a gap).
 fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
@@ -87,7 +88,7 @@ fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
 
 /// Compares two analyses of one subject (`before`, then `after`).
 pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
-    let pairs: [(&str, fn(&BackAnalysis) -> Option<(f64, f64)>); 9] = [
+    let pairs: [(&str, Index); 9] = [
         ("rotation_max_deg", |a| {
             Some((a.rotation_max_deg, a.rotation_max_deg_sigma))
         }),

@@ -110,10 +110,10 @@ impl Grid {
             index: [0; 16],
             weight: [0.0; 16],
         };
-        for q in 0..4 {
-            for p in 0..4 {
+        for (q, wv) in bv.iter().enumerate() {
+            for (p, wa) in ba.iter().enumerate() {
                 s.index[4 * q + p] = (ia + p) + row * (iv + q);
-                s.weight[4 * q + p] = ba[p] * bv[q];
+                s.weight[4 * q + p] = wa * wv;
             }
         }
         Some(s)
