@@ -64,7 +64,10 @@ pub fn shared_data(name: &str) -> Option<std::path::PathBuf> {
     // testkit/ sits in the repository, which sits beside shared/.
     let repository = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent();
     let beside = repository.and_then(std::path::Path::parent);
-    let dir = beside.unwrap_or(std::path::Path::new("..")).join("shared").join(name);
+    let dir = beside
+        .unwrap_or(std::path::Path::new(".."))
+        .join("shared")
+        .join(name);
     let hint = format!("the data set at {}", dir.display());
     require(name, dir.is_dir(), &hint).then_some(dir)
 }

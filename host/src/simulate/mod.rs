@@ -7,6 +7,7 @@
 //! and the plate of image k is moved by X_G = R1ᵀ R_k (X_P − X0_k) + X0_1 (for pure translations
 //! the plate of image k lies at Z ≈ 100 (k − 1)).
 
+pub mod back;
 pub mod images;
 pub mod objects;
 pub mod pattern;

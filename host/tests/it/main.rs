@@ -1,5 +1,9 @@
 //! The host crate's integration tests, one binary: each module is one former test file.
 mod accuracy;
+mod back_accuracy;
+mod back_real;
+mod back_real_data;
+mod back_sim;
 mod bad_input;
 mod board_calibration_opencv;
 mod cli_calibration;

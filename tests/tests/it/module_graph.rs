@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The crates whose modules are checked, relative to the workspace.
-const CRATES: [&str; 5] = ["shared", "firmware", "calib", "measure", "host"];
+const CRATES: [&str; 6] = ["shared", "firmware", "calib", "measure", "surface", "host"];
 
 /// The host's layers, highest first: a module may import its own layer and those below.
 const HOST_LAYERS: [&[&str]; 3] = [

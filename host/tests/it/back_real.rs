@@ -1,0 +1,54 @@
+//! The real scoliotic backs (ten patients, upright and bent forward; see
+//! `back_real_data`), thinned to 15 mm as a dot pattern would see them: every scan analysed,
+//! the largest surface rotation (upright) and the virtual scoliometer (bent forward) against
+//! the radiographic Cobb angle. Without the data folder it skips visibly
+//! ([`deltaz_testkit::require`]).
+
+use crate::back_real_data::{cobb_angles, correlation, folder, read_ply, thinned};
+use deltaz_surface::{analyse, Options};
+
+const SPACING: f64 = 15.0;
+/// The scans carry no σ: the structured-light scanner's is taken as 0.5 mm.
+const SIGMA: f64 = 0.5;
+
+#[test]
+fn real_backs_against_cobb() {
+    let Some(dir) = folder() else { return };
+    let (mut cobb, mut rotation, mut atr) = (vec![], vec![], vec![]);
+    for (name, angle) in cobb_angles(&dir) {
+        let scan = |pose: &str, options: Options| {
+            let path = dir.join(pose).join(format!("{name}.ply"));
+            let points = read_ply(&path).unwrap();
+            analyse(&[thinned(&points, SPACING, SIGMA)], &options)
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        };
+        let upright = scan("upright", Options::standing());
+        let bent = scan("adams", Options::forward_bent());
+        assert!(
+            upright.levels.len() >= 15 && bent.levels.len() >= 15,
+            "{name}: too few levels"
+        );
+        let reading = bent
+            .atr_max_deg
+            .expect("a forward-bent analysis reads the scoliometer");
+        eprintln!(
+            "{name}: Cobb {angle}°, largest rotation {:.1} ± {:.1}°, scoliometer {:.1} ± {:.1}°",
+            upright.rotation_max_deg,
+            upright.rotation_max_deg_sigma,
+            reading,
+            bent.atr_max_deg_sigma.unwrap()
+        );
+        cobb.push(angle);
+        rotation.push(upright.rotation_max_deg.abs());
+        atr.push(reading.abs());
+    }
+    let (r_rotation, r_atr) = (correlation(&rotation, &cobb), correlation(&atr, &cobb));
+    eprintln!("real backs ({} patients): r(largest rotation, Cobb) = {r_rotation:.3}, r(scoliometer, Cobb) = {r_atr:.3}", cobb.len());
+    assert_eq!(cobb.len(), 10);
+    // Measured 0.68 and 0.70 at 15 mm: below the 0.75 (see the report).
+    assert!(
+        r_rotation >= 0.6,
+        "r(largest rotation, Cobb) = {r_rotation:.3}"
+    );
+    assert!(r_atr >= 0.6, "r(scoliometer, Cobb) = {r_atr:.3}");
+}

@@ -1,0 +1,267 @@
+//! The back model's dots as a scan gives them: each dot's own noise (σ mostly along the
+//! camera's line of sight) and the calibration's error common to all points of a scan.
+
+use deltaz_host::simulate::back::{Axes, BackModel, Lattice, LatticeDot};
+use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// The noise of a scan (mm, rad).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Noise {
+    /// σ along the camera's line of sight.
+    pub depth: f64,
+    /// σ across it.
+    pub lateral: f64,
+    /// σ of the common shift (each axis).
+    pub common_shift: f64,
+    /// σ of the common rotation about the camera's y axis through the back's centre.
+    pub common_tilt: f64,
+}
+
+impl Noise {
+    /// The issue's: 0.4 mm in depth, and a common share.
+    pub fn issue() -> Self {
+        Self {
+            depth: 0.4,
+            lateral: 0.1,
+            common_shift: 0.3,
+            common_tilt: 0.1f64.to_radians(),
+        }
+    }
+}
+
+/// The back's centre, which the common rotation turns about.
+const CENTRE: Vector3<f64> = Vector3::new(0.0, 0.0, -1500.0);
+
+/// A point's common-share sensitivity: a shift, and a rotation about y through the centre.
+fn sensitivity(p: &Vector3<f64>) -> DMatrix<f64> {
+    let turn = Vector3::y().cross(&(p - CENTRE));
+    DMatrix::from_fn(3, 4, |r, c| if c < 3 { f64::from(r == c) } else { turn[r] })
+}
+
+/// The common share's covariance.
+fn common_covariance(noise: &Noise) -> DMatrix<f64> {
+    let s = noise.common_shift.powi(2);
+    DMatrix::from_diagonal(&DVector::from_vec(vec![s, s, s, noise.common_tilt.powi(2)]))
+}
+
+/// A draw of the common error δ of one scan.
+pub fn common_draw(noise: &Noise, rng: &mut ChaCha8Rng) -> DVector<f64> {
+    let sd = common_covariance(noise).map_diagonal(f64::sqrt);
+    sd.map(|s| s * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng))
+}
+
+/// The dots on the back (the arms too) measured: true point + own noise + G δ; `calibration`
+/// is the fingerprint.
+pub fn frame(
+    dots: &[LatticeDot],
+    noise: &Noise,
+    delta: &DVector<f64>,
+    rng: &mut ChaCha8Rng,
+) -> Frame {
+    let mut g_all = DMatrix::zeros(3 * dots.len(), 4);
+    let points = dots
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let p = d.hit.point;
+            let sight = p.normalize();
+            let along = sight * sight.transpose();
+            let cov =
+                along * noise.depth.powi(2) + (Matrix3::identity() - along) * noise.lateral.powi(2);
+            let own = cov.cholesky().unwrap().l()
+                * Vector3::from_fn(|_, _| {
+                    <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng)
+                });
+            let g = sensitivity(&p);
+            g_all.rows_mut(3 * i, 3).copy_from(&g);
+            let common = &g * delta;
+            ScanPoint {
+                position: p + own + Vector3::new(common[0], common[1], common[2]),
+                covariance: cov,
+                ray: d.ray,
+            }
+        })
+        .collect();
+    Frame {
+        points,
+        calibration: Some(0x00de_17a2),
+        common: CommonShare::Core {
+            covariance: common_covariance(noise),
+            sensitivity: g_all,
+        },
+    }
+}
+
+/// A seeded generator for draw `k` of a test.
+pub fn rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed)
+}
+
+/// The dots a projector lattice `spacing` apart puts on `model`, the back's only.
+pub fn back_dots(model: &BackModel, spacing: f64) -> Vec<LatticeDot> {
+    model.sample(&Lattice::beside_camera(spacing))
+}
+
+/// Error and error/σ of an index over draws.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Errors {
+    sq: f64,
+    z2: f64,
+    n: usize,
+}
+
+impl Errors {
+    /// Adds an error with its σ.
+    pub fn push(&mut self, error: f64, sigma: f64) {
+        self.sq += error * error;
+        self.z2 += (error / sigma).powi(2);
+        self.n += 1;
+    }
+
+    /// RMS error.
+    pub fn rms(&self) -> f64 {
+        (self.sq / self.n.max(1) as f64).sqrt()
+    }
+
+    /// RMS of error / σ.
+    pub fn z(&self) -> f64 {
+        (self.z2 / self.n.max(1) as f64).sqrt()
+    }
+
+    /// How many errors.
+    pub fn count(&self) -> usize {
+        self.n
+    }
+}
+
+/// The analysis frame of an analysis, for the model's truth.
+pub fn axes_of(a: &BackAnalysis) -> Axes {
+    Axes {
+        across: Vector3::from(a.axes.across),
+        axis: Vector3::from(a.axes.axis),
+        up: Vector3::from(a.axes.up),
+    }
+}
+
+/// Each index's errors against the model's truth.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct IndexErrors {
+    /// Symmetry line, per level (mm).
+    pub symmetry_x: Errors,
+    /// Surface rotation, per level (°).
+    pub rotation: Errors,
+    /// Skin angle, per level (°).
+    pub skin_angle: Errors,
+    /// Scoliometer, per level (°).
+    pub atr: Errors,
+    /// Largest rotation (°).
+    pub rotation_max: Errors,
+    /// Largest lateral deviation (mm).
+    pub lateral_deviation_max: Errors,
+    /// Trunk imbalance (mm).
+    pub trunk_imbalance: Errors,
+    /// Trunk inclination (°).
+    pub trunk_inclination: Errors,
+    /// Largest scoliometer angle (°).
+    pub atr_max: Errors,
+    /// The largest |rotation| of each draw (°).
+    pub largest_rotation: Vec<f64>,
+}
+
+/// The signed value of largest magnitude.
+fn largest(values: impl Iterator<Item = f64>) -> f64 {
+    values.fold(0.0, |m: f64, x| if x.abs() > m.abs() { x } else { m })
+}
+
+impl IndexErrors {
+    /// Adds an analysis of `model` (the frame 0 model of a scan) to the errors.
+    pub fn add(&mut self, model: &BackModel, a: &BackAnalysis) {
+        let axes = axes_of(a);
+        let mut truth = Vec::new();
+        for l in &a.levels {
+            let (x, n) = model
+                .symmetry_point(&axes, l.y)
+                .expect("truth at the level");
+            let rotation = model
+                .rotation(&axes, l.y)
+                .expect("truth at the level")
+                .to_degrees();
+            self.symmetry_x.push(l.symmetry_x - x, l.symmetry_x_sigma);
+            self.rotation
+                .push(l.rotation_deg - rotation, l.rotation_sigma_deg);
+            if let (Some(s), Some(sd)) = (l.skin_angle_deg, l.skin_angle_sigma_deg) {
+                let t = model
+                    .skin_angle(&axes, l.y, a.skin_angle_distance_mm)
+                    .unwrap();
+                self.skin_angle.push(s - t.to_degrees(), sd);
+            }
+            let atr = l.atr_window.map(|w| {
+                model
+                    .scoliometer(&axes, l.y, (w[0], w[1]))
+                    .unwrap()
+                    .to_degrees()
+            });
+            if let (Some(t), Some(e), Some(sd)) = (atr, l.atr_deg, l.atr_sigma_deg) {
+                self.atr.push(e - t, sd);
+            }
+            truth.push((l.y, x, n, rotation, atr));
+        }
+        let (first, last) = (truth[0], truth[truth.len() - 1]);
+        let deviation = truth.iter().map(|t| {
+            let f = (t.0 - first.0) / (last.0 - first.0);
+            t.1 - (1.0 - f) * first.1 - f * last.1
+        });
+        self.rotation_max.push(
+            a.rotation_max_deg - largest(truth.iter().map(|t| t.3)),
+            a.rotation_max_deg_sigma,
+        );
+        self.lateral_deviation_max.push(
+            a.lateral_deviation_max_mm - largest(deviation),
+            a.lateral_deviation_max_mm_sigma,
+        );
+        self.trunk_imbalance.push(
+            a.trunk_imbalance_mm - (last.1 - first.1),
+            a.trunk_imbalance_mm_sigma,
+        );
+        let inclination = (last.2 - first.2).atan2(last.0 - first.0).to_degrees();
+        self.trunk_inclination.push(
+            a.trunk_inclination_deg - inclination,
+            a.trunk_inclination_deg_sigma,
+        );
+        if let (Some(m), Some(sd)) = (a.atr_max_deg, a.atr_max_deg_sigma) {
+            self.atr_max
+                .push(m - largest(truth.iter().filter_map(|t| t.4)), sd);
+        }
+        self.largest_rotation.push(a.rotation_max_deg.abs());
+    }
+}
+
+/// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), each
+/// with its own noise and common error, analysed with `options`.
+pub fn scans(
+    models: &[BackModel],
+    spacing: f64,
+    draws: u64,
+    seed: u64,
+    options: &Options,
+) -> IndexErrors {
+    let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
+    let noise = Noise::issue();
+    let mut errors = IndexErrors::default();
+    for k in 0..draws {
+        let mut r = rng(seed + k);
+        let delta = common_draw(&noise, &mut r);
+        let frames: Vec<Frame> = dots
+            .iter()
+            .map(|d| frame(d, &noise, &delta, &mut r))
+            .collect();
+        let a = analyse(&frames, options)
+            .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
+        errors.add(&models[0], &a);
+    }
+    errors
+}

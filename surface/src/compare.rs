@@ -1,0 +1,145 @@
+//! A follow-up: the change of each index and profile between two analyses of one subject,
+//! with its σ, and which changes exceed measurement noise.
+//!
+//! The two scans are independent measurements: a change's σ is √(σ₁² + σ₂²) (a calibration
+//! shared by both would make its common share cancel in part: this overstates σ then). A
+//! change exceeds the noise when it is larger than [`Comparison::threshold`] σ (1.96: 5 % of
+//! changes from noise alone are flagged). Profiles are compared at the first analysis'
+//! levels, the second's interpolated between its two nearest levels (its σ taken as the
+//! interpolated σ, as if the two levels' errors were fully correlated).
+
+use crate::analysis::{BackAnalysis, Level};
+use serde::{Deserialize, Serialize};
+
+/// One value's change.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Change {
+    /// What changed (the analysis' field name).
+    pub name: String,
+    /// Its value before.
+    pub before: f64,
+    /// After.
+    pub after: f64,
+    /// after − before.
+    pub change: f64,
+    /// The change's σ.
+    pub sigma: f64,
+    /// Whether |change| exceeds the threshold × σ.
+    pub exceeds_noise: bool,
+}
+
+/// The profiles' change at one level.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LevelChange {
+    /// The level (the first analysis').
+    pub y: f64,
+    /// The symmetry point's change across (mm).
+    pub symmetry_x: Change,
+    /// The surface rotation's (degrees).
+    pub rotation_deg: Change,
+    /// The lateral deviation's (mm).
+    pub lateral_deviation_mm: Change,
+}
+
+/// The comparison of two analyses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Comparison {
+    /// Changes beyond this many σ exceed the noise.
+    pub threshold: f64,
+    /// The indices' changes (those both analyses have).
+    pub indices: Vec<Change>,
+    /// The profiles' changes at the levels both cover.
+    pub levels: Vec<LevelChange>,
+}
+
+/// The threshold of [`compare`].
+pub const THRESHOLD: f64 = 1.96;
+
+fn change(name: &str, before: (f64, f64), after: (f64, f64)) -> Change {
+    let (d, sigma) = (after.0 - before.0, before.1.hypot(after.1));
+    Change {
+        name: name.to_string(),
+        before: before.0,
+        after: after.0,
+        change: d,
+        sigma,
+        exceeds_noise: d.abs() > THRESHOLD * sigma,
+    }
+}
+
+type Profile = fn(&Level) -> (f64, f64);
+type Index = fn(&BackAnalysis) -> Option<(f64, f64)>;
+
+/// `after`'s profile interpolated at level y (None outside it or across a gap).
+fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
+    let k = after.windows(2).position(|w| w[0].y <= y && y <= w[1].y)?;
+    let (l0, l1) = (&after[k], &after[k + 1]);
+    if l1.y - l0.y > gap {
+        return None;
+    }
+    let t = if l1.y > l0.y {
+        (y - l0.y) / (l1.y - l0.y)
+    } else {
+        0.0
+    };
+    let ((v0, s0), (v1, s1)) = (f(l0), f(l1));
+    Some((v0 + t * (v1 - v0), s0 + t * (s1 - s0)))
+}
+
+/// Compares two analyses of one subject (`before`, then `after`).
+pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
+    let pairs: [(&str, Index); 9] = [
+        ("rotation_max_deg", |a| {
+            Some((a.rotation_max_deg, a.rotation_max_deg_sigma))
+        }),
+        ("rotation_rms_deg", |a| {
+            Some((a.rotation_rms_deg, a.rotation_rms_deg_sigma))
+        }),
+        ("lateral_deviation_max_mm", |a| {
+            Some((a.lateral_deviation_max_mm, a.lateral_deviation_max_mm_sigma))
+        }),
+        ("lateral_deviation_rms_mm", |a| {
+            Some((a.lateral_deviation_rms_mm, a.lateral_deviation_rms_mm_sigma))
+        }),
+        ("trunk_imbalance_mm", |a| {
+            Some((a.trunk_imbalance_mm, a.trunk_imbalance_mm_sigma))
+        }),
+        ("trunk_inclination_deg", |a| {
+            Some((a.trunk_inclination_deg, a.trunk_inclination_deg_sigma))
+        }),
+        ("kyphosis_deg", |a| a.kyphosis_deg.zip(a.kyphosis_deg_sigma)),
+        ("lordosis_deg", |a| a.lordosis_deg.zip(a.lordosis_deg_sigma)),
+        ("atr_max_deg", |a| a.atr_max_deg.zip(a.atr_max_deg_sigma)),
+    ];
+    let indices = pairs
+        .iter()
+        .filter_map(|(name, f)| Some(change(name, f(before)?, f(after)?)))
+        .collect();
+    let gap = 1.5 * after.spacing_mm.max(before.spacing_mm);
+    let profiles: [(&str, Profile); 3] = [
+        ("symmetry_x", |l| (l.symmetry_x, l.symmetry_x_sigma)),
+        ("rotation_deg", |l| (l.rotation_deg, l.rotation_sigma_deg)),
+        ("lateral_deviation_mm", |l| {
+            (l.lateral_deviation_mm, l.lateral_deviation_sigma_mm)
+        }),
+    ];
+    let levels = before
+        .levels
+        .iter()
+        .filter_map(|l| {
+            let [x, r, d] =
+                profiles.map(|(name, f)| Some(change(name, f(l), at(&after.levels, l.y, gap, f)?)));
+            Some(LevelChange {
+                y: l.y,
+                symmetry_x: x?,
+                rotation_deg: r?,
+                lateral_deviation_mm: d?,
+            })
+        })
+        .collect();
+    Comparison {
+        threshold: THRESHOLD,
+        indices,
+        levels,
+    }
+}

@@ -1,0 +1,329 @@
+//! The smooth surface n = s(a, v) of one subject's frames, registered onto the first, with its
+//! covariance.
+//!
+//! Frame k's point p (analysis axes) is moved by its pose, q = c + R_k (p − c) + t_k (frame 0
+//! stays), and should lie on the surface: r = q_n − s(q_a, q_v). The coefficients of s and the
+//! poses are adjusted together by Gauss-Newton, each residual weighted by the inverse of its
+//! variance jpᵀ C jp (jp = ∂r/∂p: a point's error across the surface counts, along it not),
+//! with a thin-plate roughness penalty λ cᵀ P c. First frame 0 alone, then each other frame's
+//! pose on it, then all together.
+//!
+//! Covariance: x̂ = N⁻¹ Σ w_i j_i e_i to first order (N the penalised normal matrix, e_i the
+//! point's error across the surface: its own, variance 1/w_i, plus u_iᵀ δ of the calibration's
+//! common share δ ~ N(0, Σ_c), u_i = G_iᵀ jp_i). A quantity with gradient g over x then has
+//! var = Σ w_i y_i² + (Σ w_i y_i u_i)ᵀ Σ_c (Σ w_i y_i u_i), y_i = j_iᵀ N⁻¹ g: the sandwich,
+//! which the penalty keeps below N⁻¹.
+
+use crate::spline::{Grid, Stencil, D};
+use crate::SurfaceError;
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
+use nalgebra_sparse::factorization::CscCholesky;
+use nalgebra_sparse::{CooMatrix, CscMatrix};
+
+/// A point in the analysis axes with its covariance and its common-share sensitivity.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Sample {
+    pub p: Vector3<f64>,
+    pub cov: Matrix3<f64>,
+    /// G_i (3 × k) in the analysis axes.
+    pub common: DMatrix<f64>,
+    pub frame: usize,
+}
+
+/// A frame's pose onto frame 0: q = centre + r (p − centre) + t.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Pose {
+    pub r: Rotation3<f64>,
+    pub t: Vector3<f64>,
+}
+
+impl Pose {
+    fn identity() -> Self {
+        Self {
+            r: Rotation3::identity(),
+            t: Vector3::zeros(),
+        }
+    }
+}
+
+/// One residual's linearisation.
+#[derive(Debug, Clone)]
+struct Row {
+    stencil: Stencil,
+    /// ∂r/∂(δω, t) of its frame's pose.
+    pose: [f64; 6],
+    frame: usize,
+    /// 1 / variance.
+    w: f64,
+    /// u_i = G_iᵀ jp_i.
+    u: DVector<f64>,
+    r: f64,
+}
+
+/// The fitted surface and poses, with what their covariance needs.
+#[derive(Debug, Clone)]
+pub(crate) struct Fit {
+    pub grid: Grid,
+    pub coeffs: Vec<f64>,
+    pub poses: Vec<Pose>,
+    pub centre: Vector3<f64>,
+    normal: CscCholesky<f64>,
+    rows: Vec<Row>,
+    common: DMatrix<f64>,
+}
+
+/// The unknowns of one Gauss-Newton step: the coefficients or not, and which frames' poses.
+struct Unknowns {
+    coeffs: bool,
+    poses: Vec<usize>,
+}
+
+impl Unknowns {
+    fn len(&self, grid: &Grid) -> usize {
+        (if self.coeffs { grid.len() } else { 0 }) + 6 * self.poses.len()
+    }
+}
+
+struct State<'a> {
+    grid: Grid,
+    coeffs: Vec<f64>,
+    poses: Vec<Pose>,
+    centre: Vector3<f64>,
+    samples: &'a [Sample],
+    penalty: CooMatrix<f64>,
+    lambda: f64,
+}
+
+impl State<'_> {
+    /// The residual of a sample, None when its point falls off the grid.
+    fn row(&self, s: &Sample) -> Option<Row> {
+        let pose = &self.poses[s.frame];
+        let x = pose.r * (s.p - self.centre);
+        let q = self.centre + x + pose.t;
+        let stencil = self.grid.stencil(q.x, q.y, D::S)?;
+        let sa = self.grid.stencil(q.x, q.y, D::A)?.apply(&self.coeffs);
+        let sv = self.grid.stencil(q.x, q.y, D::V)?.apply(&self.coeffs);
+        let grad = Vector3::new(-sa, -sv, 1.0);
+        let jp = pose.r.inverse() * grad;
+        let var = (jp.transpose() * s.cov * jp)[0].max(1e-12);
+        let dw = x.cross(&grad);
+        Some(Row {
+            stencil,
+            pose: [dw.x, dw.y, dw.z, grad.x, grad.y, grad.z],
+            frame: s.frame,
+            w: 1.0 / var,
+            u: s.common.transpose() * jp,
+            r: q.z - stencil.apply(&self.coeffs),
+        })
+    }
+
+    /// The penalised normal equations over `which`, with only `frames`' samples (sparse).
+    fn normal(&self, which: &Unknowns, frames: &[usize]) -> (CscMatrix<f64>, DVector<f64>) {
+        let n = which.len(&self.grid);
+        let m = if which.coeffs { self.grid.len() } else { 0 };
+        let mut a = CooMatrix::new(n, n);
+        let mut b = DVector::zeros(n);
+        let mut idx: Vec<(usize, f64)> = Vec::with_capacity(22);
+        for s in self.samples.iter().filter(|s| frames.contains(&s.frame)) {
+            let Some(row) = self.row(s) else { continue };
+            idx.clear();
+            if which.coeffs {
+                let terms = row.stencil.index.iter().zip(&row.stencil.weight);
+                idx.extend(terms.map(|(&i, &w)| (i, -w)));
+            }
+            if let Some(k) = which.poses.iter().position(|&f| f == s.frame) {
+                idx.extend(
+                    row.pose
+                        .iter()
+                        .enumerate()
+                        .map(|(j, &d)| (m + 6 * k + j, d)),
+                );
+            }
+            for &(i, di) in &idx {
+                b[i] -= row.w * di * row.r;
+                for &(j, dj) in &idx {
+                    a.push(i, j, row.w * di * dj);
+                }
+            }
+        }
+        if which.coeffs {
+            for (i, j, &p) in self.penalty.triplet_iter() {
+                a.push(i, j, self.lambda * p);
+                b[i] -= self.lambda * p * self.coeffs[j];
+            }
+        }
+        (CscMatrix::from(&a), b)
+    }
+
+    /// One Gauss-Newton step over `which`; returns the largest change.
+    fn step(&mut self, which: &Unknowns, frames: &[usize]) -> Result<f64, SurfaceError> {
+        let (a, b) = self.normal(which, frames);
+        let dx = CscCholesky::factor(&a)
+            .map_err(|_| SurfaceError::Singular)?
+            .solve(&b)
+            .column(0)
+            .into_owned();
+        let m = if which.coeffs { self.grid.len() } else { 0 };
+        for (c, d) in self.coeffs.iter_mut().zip(dx.iter().take(m)) {
+            *c += d;
+        }
+        for (k, &f) in which.poses.iter().enumerate() {
+            let d = dx.rows(m + 6 * k, 6);
+            let pose = &mut self.poses[f];
+            pose.r = Rotation3::new(Vector3::new(d[0], d[1], d[2])) * pose.r;
+            pose.t += Vector3::new(d[3], d[4], d[5]);
+        }
+        Ok(dx.amax())
+    }
+}
+
+/// Fits the surface on `grid` to the samples of `frames` frames, registering frames 1.. onto
+/// frame 0; `lambda` weighs the roughness penalty relative to a sample of weight 1, `common`
+/// is Σ_c of the calibration's common share.
+pub(crate) fn fit(
+    samples: &[Sample],
+    frames: usize,
+    grid: Grid,
+    lambda: f64,
+    common: DMatrix<f64>,
+) -> Result<Fit, SurfaceError> {
+    let n = samples.len() as f64;
+    let centre = samples
+        .iter()
+        .filter(|s| s.frame == 0)
+        .map(|s| s.p)
+        .sum::<Vector3<f64>>()
+        / n;
+    let mean_weight = samples
+        .iter()
+        .map(|s| 1.0 / s.cov[(2, 2)].max(1e-12))
+        .sum::<f64>()
+        / n;
+    let mut state = State {
+        grid,
+        coeffs: vec![0.0; grid.len()],
+        poses: vec![Pose::identity(); frames],
+        centre,
+        samples,
+        penalty: grid.penalty(),
+        lambda: lambda * mean_weight,
+    };
+    let surface = Unknowns {
+        coeffs: true,
+        poses: vec![],
+    };
+    for _ in 0..3 {
+        state.step(&surface, &[0])?;
+    }
+    for f in 1..frames {
+        let pose = Unknowns {
+            coeffs: false,
+            poses: vec![f],
+        };
+        for _ in 0..20 {
+            if state.step(&pose, &[f])? < 1e-7 {
+                break;
+            }
+        }
+    }
+    let all: Vec<usize> = (0..frames).collect();
+    let joint = Unknowns {
+        coeffs: true,
+        poses: (1..frames).collect(),
+    };
+    for _ in 0..3 {
+        state.step(&joint, &all)?;
+    }
+    let (a, _) = state.normal(&joint, &all);
+    let normal = CscCholesky::factor(&a).map_err(|_| SurfaceError::Singular)?;
+    let rows: Vec<Row> = samples.iter().filter_map(|s| state.row(s)).collect();
+    Ok(Fit {
+        grid,
+        coeffs: state.coeffs,
+        poses: state.poses,
+        centre,
+        normal,
+        rows,
+        common,
+    })
+}
+
+impl Fit {
+    /// The number of unknowns (coefficients, then 6 per frame after the first).
+    pub fn unknowns(&self) -> usize {
+        self.grid.len() + 6 * (self.poses.len() - 1)
+    }
+
+    /// The surface's value `d` at (a, v).
+    pub fn value(&self, a: f64, v: f64, d: D) -> Option<f64> {
+        Some(self.grid.stencil(a, v, d)?.apply(&self.coeffs))
+    }
+
+    /// Adds `weight` × the gradient of value `d` at (a, v) to `g`.
+    pub fn add(&self, g: &mut DVector<f64>, a: f64, v: f64, d: D, weight: f64) {
+        if let Some(s) = self.grid.stencil(a, v, d) {
+            for (&i, &w) in s.index.iter().zip(&s.weight) {
+                g[i] += weight * w;
+            }
+        }
+    }
+
+    /// A zero gradient.
+    pub fn zero(&self) -> DVector<f64> {
+        DVector::zeros(self.unknowns())
+    }
+
+    /// The gradient of frame k's pose component j (δω then t).
+    pub fn pose_gradient(&self, frame: usize, j: usize) -> DVector<f64> {
+        let mut g = self.zero();
+        g[self.grid.len() + 6 * (frame - 1) + j] = 1.0;
+        g
+    }
+
+    /// What the covariance of quantities with gradients `grads` is made of: √w_i y_i for each
+    /// residual (n × k) and Σ w_i u_i y_iᵀ (k_c × k).
+    fn spread(&self, grads: &[DVector<f64>]) -> (DMatrix<f64>, DMatrix<f64>) {
+        let k = grads.len();
+        let z = self.normal.solve(&DMatrix::from_columns(grads));
+
+        let m = self.grid.len();
+        let mut y = DMatrix::zeros(self.rows.len(), k);
+        let mut u = DMatrix::zeros(self.common.nrows(), k);
+        for (i, row) in self.rows.iter().enumerate() {
+            let sw = row.w.sqrt();
+            for q in 0..k {
+                let mut s = 0.0;
+                for (&c, &w) in row.stencil.index.iter().zip(&row.stencil.weight) {
+                    s -= w * z[(c, q)];
+                }
+                if row.frame > 0 {
+                    let o = m + 6 * (row.frame - 1);
+                    s += (0..6).map(|j| row.pose[j] * z[(o + j, q)]).sum::<f64>();
+                }
+                y[(i, q)] = sw * s;
+                for (j, uj) in row.u.iter().enumerate() {
+                    u[(j, q)] += sw * uj * y[(i, q)];
+                }
+            }
+        }
+        (y, u)
+    }
+
+    /// The variances alone of the quantities whose gradients are `grads`.
+    pub fn variances(&self, grads: &[DVector<f64>]) -> Vec<f64> {
+        if grads.is_empty() {
+            return vec![];
+        }
+        let (y, u) = self.spread(grads);
+        let cu = &self.common * &u;
+        (0..grads.len())
+            .map(|q| y.column(q).norm_squared() + u.column(q).dot(&cu.column(q)))
+            .collect()
+    }
+
+    /// The normalised residuals' RMS: about 1 when the points' σ and the surface are right.
+    pub fn chi(&self) -> f64 {
+        let n = self.rows.len().max(1) as f64;
+        (self.rows.iter().map(|r| r.w * r.r * r.r).sum::<f64>() / n).sqrt()
+    }
+}

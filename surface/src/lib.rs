@@ -1,0 +1,149 @@
+//! deltaz-surface: back-surface topography from structured-light points, the measures a
+//! scoliosis screening reads, each with its σ.
+//!
+//! From each frame's points ([`Frame`]: positions in the camera system, each point's
+//! covariance, the calibration's common share), a mesh over the projector lattice finds the
+//! back (the largest connected piece; occlusions and depth jumps leave holes), one smooth
+//! surface is fitted to all frames of a subject with the frames registered onto the first
+//! ([`fit`]), and [`analyse`] measures it: the symmetry line ([`symmetry`]), the surface
+//! rotation along it, its lateral deviation, trunk imbalance and inclination, skin angles,
+//! the sagittal profile (kyphosis, lordosis), the virtual scoliometer on a forward-bent scan
+//! ([`scoliometer`]) and a mirror-asymmetry map ([`BackAnalysis`]). [`compare`] tells which
+//! changes between two analyses exceed measurement noise.
+//!
+//! Conventions: mm and degrees in the output; the camera system x right, y up, z toward the
+//! camera, the subject's back to the camera (the subject's right is +x); vertical +y unless
+//! given; `rotation_deg` is atan(∂z/∂x) of the surface at the symmetry line, positive when the
+//! +x side comes toward the camera.
+#![deny(missing_docs)]
+
+pub mod analysis;
+pub mod compare;
+mod fit;
+pub mod input;
+pub mod mesh;
+pub mod scoliometer;
+mod spline;
+mod support;
+pub mod symmetry;
+
+pub use analysis::{analyse, Axes, BackAnalysis, Level, Map, Options, Posture, Sway};
+pub use compare::{compare, Change, Comparison};
+pub use input::{thin, CommonShare, Frame, ScanPoint};
+
+/// Why a cloud could not be analysed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SurfaceError {
+    /// No frame was given.
+    NoFrames,
+    /// A point's numbers are unusable.
+    BadPoint {
+        /// The frame (0-based).
+        frame: usize,
+        /// The point (0-based).
+        point: usize,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The common share's matrices do not fit the frame.
+    BadCommonShare {
+        /// The frame.
+        frame: usize,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A frame was measured with another calibration than the first.
+    MixedCalibrations {
+        /// The frame.
+        frame: usize,
+        /// The first frame's fingerprint.
+        first: Option<u64>,
+        /// This frame's.
+        this: Option<u64>,
+    },
+    /// Too few points to be a back.
+    TooFewPoints {
+        /// The frame.
+        frame: usize,
+        /// Its points.
+        points: usize,
+        /// How many are needed.
+        needed: usize,
+    },
+    /// No back in view.
+    NoBack {
+        /// The frame.
+        frame: usize,
+        /// Why not.
+        problem: String,
+    },
+    /// The cloud is a plane, not a back.
+    Plane {
+        /// The frame.
+        frame: usize,
+        /// Its RMS distance from its best plane (mm).
+        rms_mm: f64,
+    },
+    /// The surface fit's normal equations are singular.
+    Singular,
+    /// No level across the back where a symmetry line could be found.
+    NoLevels,
+    /// The options are unusable.
+    BadOptions(String),
+}
+
+impl std::fmt::Display for SurfaceError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SurfaceError::NoFrames => f.write_str("no frame to analyse"),
+            SurfaceError::BadPoint {
+                frame,
+                point,
+                problem,
+            } => write!(f, "frame {frame}, point {point}: {problem}"),
+            SurfaceError::BadCommonShare { frame, problem } => {
+                write!(
+                    f,
+                    "frame {frame}: the calibration's common share does not fit: {problem}"
+                )
+            }
+            SurfaceError::MixedCalibrations { frame, first, this } => {
+                let name = |c: &Option<u64>| c.map_or("none".to_string(), |c| format!("{c:016x}"));
+                write!(
+                    f,
+                    "frame {frame} was measured with calibration {} but frame 0 with {}: \
+                     frames of one analysis need one calibration",
+                    name(this),
+                    name(first)
+                )
+            }
+            SurfaceError::TooFewPoints {
+                frame,
+                points,
+                needed,
+            } => write!(
+                f,
+                "frame {frame} has {points} points, a back needs at least {needed}"
+            ),
+            SurfaceError::NoBack { frame, problem } => {
+                write!(f, "frame {frame}: no back in view: {problem}")
+            }
+            SurfaceError::Plane { frame, rms_mm } => write!(
+                f,
+                "frame {frame} is a plane, not a back: its points lie within {rms_mm:.2} mm RMS \
+                 of their best plane (a back departs by more than {} mm)",
+                analysis::PLANE_RMS_MM
+            ),
+            SurfaceError::Singular => {
+                f.write_str("the surface fit is singular (too few points spread over the back)")
+            }
+            SurfaceError::NoLevels => f.write_str(
+                "no level across the back where the symmetry line could be found \
+                 (is the back's middle in view?)",
+            ),
+            SurfaceError::BadOptions(why) => write!(f, "bad options: {why}"),
+        }
+    }
+}
+
+impl std::error::Error for SurfaceError {}

@@ -1,0 +1,177 @@
+//! The symmetry point of a section: the line in the section's plane (a, n) about which the
+//! section over a window either side is most nearly its own mirror image.
+//!
+//! A section that is a symmetric profile rotated by θ and shifted is mirror symmetric about
+//! the profile's axis, whatever θ; its symmetry point is where that axis meets the section, and
+//! the section's slope there is tan θ. For a point P = (x, s(x)) and an axis through P at angle
+//! θ from n (direction (−sin θ, cos θ)), each point Q = (x ± t, s(x ± t)) of the window maps to
+//! Q' = P + M(Q − P), M the reflection, whose miss r = s(Q'_a) − Q'_n is minimised in the
+//! weighted least-squares sense over (x, θ) (weights (1 − (t/w)²)², t < w). The point's
+//! gradient over the surface's coefficients follows by implicit differentiation of the normal
+//! equations, dp = −(JᵀΩJ)⁻¹ JᵀΩ (∂r/∂c) dc.
+
+use crate::fit::Fit;
+use crate::spline::D;
+use nalgebra::{DVector, Matrix2, Vector2};
+
+/// Samples of the window on each side.
+const SAMPLES: usize = 24;
+
+/// A level's symmetry point with the gradient of its position over the fit's unknowns.
+#[derive(Debug, Clone)]
+pub(crate) struct Symmetry {
+    pub a: f64,
+    pub gradient: DVector<f64>,
+    /// The axis' tilt from n (rad, positive toward −a: the section's slope there is tan θ).
+    pub theta: f64,
+    pub theta_gradient: DVector<f64>,
+}
+
+struct Residual {
+    r: f64,
+    /// ∂r/∂(x, θ).
+    jp: Vector2<f64>,
+    /// ∂r/∂c as (a, d, weight) terms: weight × the gradient of s's value `d` at a.
+    terms: [(f64, D, f64); 3],
+}
+
+fn reflection(theta: f64) -> (Matrix2<f64>, Matrix2<f64>) {
+    let (s2, c2) = (2.0 * theta).sin_cos();
+    let m = Matrix2::new(-c2, -s2, -s2, c2);
+    let dm = Matrix2::new(2.0 * s2, -2.0 * c2, -2.0 * c2, -2.0 * s2);
+    (m, dm)
+}
+
+/// The residual of the sample at offset `t` (signed) for the axis (x, θ) at level v.
+fn residual(fit: &Fit, v: f64, x: f64, theta: f64, t: f64) -> Option<Residual> {
+    let (m, dm) = reflection(theta);
+    let s = |a: f64, d: D| fit.value(a, v, d);
+    let p = Vector2::new(x, s(x, D::S)?);
+    let q = Vector2::new(x + t, s(x + t, D::S)?);
+    let image = p + m * (q - p);
+    let slope = s(image.x, D::A)?;
+    let miss = |d: Vector2<f64>| slope * d.x - d.y;
+    let dp = Vector2::new(1.0, s(x, D::A)?);
+    let dq = Vector2::new(1.0, s(x + t, D::A)?);
+    let id = Matrix2::identity();
+    let dx = (id - m) * dp + m * dq;
+    let dtheta = dm * (q - p);
+    let n = Vector2::new(0.0, 1.0);
+    Some(Residual {
+        r: s(image.x, D::S)? - image.y,
+        jp: Vector2::new(miss(dx), miss(dtheta)),
+        terms: [
+            (image.x, D::S, 1.0),
+            (x, D::S, miss((id - m) * n)),
+            (x + t, D::S, miss(m * n)),
+        ],
+    })
+}
+
+fn taper(t: f64, w: f64) -> f64 {
+    (1.0 - (t / w).powi(2)).powi(2)
+}
+
+fn offsets(w: f64) -> impl Iterator<Item = (f64, f64)> {
+    (0..SAMPLES).flat_map(move |k| {
+        let t = w * (k as f64 + 0.5) / SAMPLES as f64;
+        [(t, taper(t, w)), (-t, taper(t, w))]
+    })
+}
+
+/// The odd part's misfit at x after a linear term, per unit weight (the criterion of the
+/// coarse search), and the linear term's slope.
+fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
+    let (mut dd, mut dt, mut tt, mut total) = (0.0, 0.0, 0.0, 0.0);
+    for (t, wt) in offsets(w).filter(|(t, _)| *t > 0.0) {
+        let d = fit.value(x + t, v, D::S)? - fit.value(x - t, v, D::S)?;
+        dd += wt * d * d;
+        dt += wt * d * t;
+        tt += wt * t * t;
+        total += wt;
+    }
+    Some(((dd - dt * dt / tt) / total, dt / (2.0 * tt)))
+}
+
+/// The coarse search over [lo, hi] (a quarter knot apart) in a section measured over `run`:
+/// each candidate's odd-part misfit over the window times that over the widest window up to
+/// twice as wide the run allows (a paraspinal muscle's crest looks symmetric close by, the
+/// trunk about it does not), and the window's linear term's slope.
+pub(crate) fn coarse(
+    fit: &Fit,
+    v: f64,
+    w: f64,
+    (lo, hi): (f64, f64),
+    run: (f64, f64),
+) -> Vec<(f64, f64, f64)> {
+    let step = fit.grid.step / 4.0;
+    let count = ((hi - lo) / step).floor() as usize;
+    (0..=count)
+        .filter_map(|k| {
+            let x = lo + k as f64 * step;
+            let wide = (2.0 * w).min(x - run.0).min(run.1 - x).max(w);
+            let (e, b) = odd_misfit(fit, v, x, w)?;
+            let (e_wide, _) = odd_misfit(fit, v, x, wide)?;
+            Some((x, e * e_wide, b))
+        })
+        .collect()
+}
+
+/// The symmetry point at level v with a window of half-width `w`: from the best of the coarse
+/// `candidates` within `near` (a from, a to), Gauss-Newton on the reflection, kept within
+/// [lo, hi].
+pub(crate) fn symmetry_at(
+    fit: &Fit,
+    v: f64,
+    w: f64,
+    candidates: &[(f64, f64, f64)],
+    near: (f64, f64),
+    (lo, hi): (f64, f64),
+) -> Option<Symmetry> {
+    let step = fit.grid.step / 4.0;
+    let (mut x, mut theta) = candidates
+        .iter()
+        .filter(|c| (near.0..=near.1).contains(&c.0))
+        .min_by(|p, q| p.1.total_cmp(&q.1))
+        .map(|&(x, _, b)| (x, b.atan()))?;
+    let mut solved = None;
+    for _ in 0..30 {
+        let mut ata = Matrix2::zeros();
+        let mut atr = Vector2::zeros();
+        let mut rows = Vec::with_capacity(2 * SAMPLES);
+        for (t, wt) in offsets(w) {
+            let r = residual(fit, v, x, theta, t)?;
+            ata += wt * r.jp * r.jp.transpose();
+            atr += wt * r.jp * r.r;
+            rows.push((wt, r));
+        }
+        let inv = ata.try_inverse()?;
+        let d = inv * atr;
+        x -= d.x.clamp(-step, step);
+        theta -= d.y.clamp(-0.05, 0.05);
+        if !(lo..=hi).contains(&x) {
+            return None;
+        }
+        solved = Some((inv, rows));
+        if d.x.abs() < 1e-6 && d.y.abs() < 1e-8 {
+            break;
+        }
+    }
+    let (inv, rows) = solved?;
+    let mut gradient = fit.zero();
+    let mut theta_gradient = fit.zero();
+    for (wt, r) in &rows {
+        // d(x, θ) = −(JᵀΩJ)⁻¹ JᵀΩ ∂r/∂c
+        let k = -(inv * r.jp) * *wt;
+        for &(a, d, weight) in &r.terms {
+            fit.add(&mut gradient, a, v, d, k.x * weight);
+            fit.add(&mut theta_gradient, a, v, d, k.y * weight);
+        }
+    }
+    Some(Symmetry {
+        a: x,
+        gradient,
+        theta,
+        theta_gradient,
+    })
+}

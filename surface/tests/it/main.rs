@@ -1,0 +1,3 @@
+//! deltaz-surface's integration tests.
+mod analytic;
+mod bad_input;
