@@ -21,6 +21,7 @@ mod objects;
 mod projector_cli;
 mod readme;
 mod real_images;
+mod resection_survey;
 mod residuals_cli;
 mod scan;
 mod simulate_images;
