@@ -2,6 +2,7 @@
 mod accuracy;
 mod bad_input;
 mod board_calibration_opencv;
+mod calibration_paths;
 mod cli_calibration;
 mod compare_cli;
 mod demo;
@@ -17,6 +18,7 @@ mod link_errors;
 mod link_in_process;
 mod measure;
 mod measure_cli;
+mod noncentral;
 mod objects;
 mod projector_cli;
 mod readme;
