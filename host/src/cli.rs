@@ -314,10 +314,13 @@ pub struct ProjectorArgs {
     /// Output system.json.
     #[arg(long)]
     pub out: PathBuf,
-    /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
-    #[arg(long, default_value = "paper")]
+    /// `joint` (the whole-system adjustment with the camera as a prior: the σ of camera,
+    /// poses, projector and dots), `noncentral` (the same, every ray a free line) or `paper`
+    /// (eqs 11-14; its σ from the dots alone, camera and poses taken as exact).
+    #[arg(long, default_value = "joint")]
     pub model: Model,
-    /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
+    /// Image noise (px, > 0): `paper` weights the plane points and gives the rays' covariances
+    /// with it; `joint` and `noncentral` start from it and estimate it.
     #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
     pub image_sigma_px: f64,
     /// `--plots DIR`.
@@ -364,10 +367,15 @@ pub struct PlotsArg {
     pub plots: Option<PathBuf>,
 }
 
-/// `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models beyond),
-/// system.json written atomically only when everything succeeded. Images too poorly controlled
-/// to resect and rays seen on one plate are left out (or, central models, determined through the
-/// centre) and listed on stderr and in the file; `strict` makes them errors.
+/// `deltaz calibrate projector`: resection per image (step 4), then the projector with the
+/// camera of `--camera` taken as its prior (`joint`, `noncentral`: the whole-system adjustment
+/// without the field images, so the camera's covariance and the plate poses' uncertainty reach
+/// the projector and every point's σ, as in `calibrate system`; the system in the camera
+/// system), or the paper's steps 5-7 (`paper`: camera and poses taken as exact, the 1st plate
+/// image's frame). system.json is written atomically only when everything succeeded. Images
+/// too poorly controlled to resect and rays seen on one plate are left out (or, central models,
+/// determined through the centre) and listed on stderr and in the file; `strict` makes them
+/// errors.
 pub fn calibrate_projector(args: &ProjectorArgs, obs: &Path, output: Output) -> Result<()> {
     let ProjectorArgs {
         camera,
@@ -379,6 +387,7 @@ pub fn calibrate_projector(args: &ProjectorArgs, obs: &Path, output: Output) -> 
         strict,
     } = args;
     let (model, image_sigma_px, strict) = (*model, *image_sigma_px, *strict);
+    let camera_path = camera;
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
     let control_points = read_control(control)?;
@@ -390,56 +399,102 @@ pub fn calibrate_projector(args: &ProjectorArgs, obs: &Path, output: Output) -> 
     let observations = read_observations(obs)?;
     let progress = output.progress(format!("calibrating the projector from {}", obs.display()));
     let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
-    let poses: Vec<_> = resected
-        .results
-        .iter()
-        .map(|(image, r)| (image.clone(), r.exterior))
-        .collect();
     let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", obs.display());
-    let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
-    let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
+    let left_out_images = resected.left_out.clone();
+    // The system, the camera it ends with, and each plate image's pose and dots.
+    let (content, inner, views) = if model == Model::Paper {
+        let poses: Vec<_> = resected
+            .results
+            .iter()
+            .map(|(image, r)| (image.clone(), r.exterior))
+            .collect();
+        let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
+        let projector = calibrate_projector_images(&grid, &inner, &images, model, image_sigma_px)
+            .map_err(|e| in_file(&e))?;
+        let mut content = SystemContent::new(grid, inner, images[0].exterior, &projector);
+        content.warnings = Warnings {
+            left_out_images,
+            single_plane_rays: projector.single_plane.clone(),
+            left_out_rays: projector.left_out.clone(),
+        };
+        let views = poses
+            .into_iter()
+            .zip(images)
+            .map(|((image, exterior), i)| (image, exterior, i.dots));
+        (content, inner, views.collect::<Vec<_>>())
+    } else {
+        let prior = camera.prior();
+        if prior.is_some() && camera.covariance.is_none() {
+            eprintln!(
+                "warning: {}: no `covariance` (written by an older deltaz): the camera's prior \
+                 takes its σ without their correlations; calibrate the camera again for the \
+                 stated σ to hold",
+                camera_path.display()
+            );
+        }
+        let noncentral = model == Model::Noncentral;
+        let plates = plate_observations(&observations, &control_points, &resected.results)
+            .map_err(|e| in_file(&e))?;
+        let adjustment = adjust_system(&SystemInput {
+            grid,
+            inner,
+            camera: prior.map_or(CameraSource::Fixed, CameraSource::Prior),
+            control: &control_points,
+            plates: plates.clone(),
+            noncentral,
+            image_sigma_px,
+        })
         .map_err(|e| in_file(&e))?;
-    progress.finish_and_clear();
-    let warnings = Warnings {
-        left_out_images: resected.left_out,
-        single_plane_rays: projector.single_plane.clone(),
-        left_out_rays: projector.left_out.clone(),
+        let warnings = Warnings {
+            left_out_images,
+            single_plane_rays: if noncentral {
+                Vec::new()
+            } else {
+                adjustment.single_plane.clone()
+            },
+            left_out_rays: adjustment.left_out.clone(),
+        };
+        let content = SystemContent::from_adjustment(grid, &adjustment, noncentral, warnings);
+        let views = plates
+            .into_iter()
+            .zip(&adjustment.poses)
+            .map(|(p, exterior)| (p.image, *exterior, p.dots));
+        (content, adjustment.model.inner, views.collect::<Vec<_>>())
     };
-    report_warnings(obs, &warnings, strict)?;
-    let mut content = SystemContent::new(grid, inner, images[0].exterior, &projector);
-    content.warnings = warnings;
+    progress.finish_and_clear();
+    report_warnings(obs, &content.warnings, strict)?;
     let rig = content.rig()?;
     let file = SystemFile::new(content)?;
     let json = file.to_json()?;
+    let projector = &file.content.projector;
     let make = || {
-        let rays: Vec<_> = projector
-            .rays
-            .iter()
+        let rays: Vec<_> = (projector.rays.iter())
             .map(|r| (r.id, r.miss_rms, r.miss_max))
             .collect();
-        let plates: Vec<_> = images
-            .iter()
-            .zip(&poses)
-            .map(|(i, (image, _))| PlateView {
+        let poses: Vec<_> = (views.iter())
+            .map(|(image, exterior, _)| (image.clone(), *exterior))
+            .collect();
+        let plates: Vec<_> = (views.iter())
+            .map(|(image, exterior, dots)| PlateView {
                 image,
-                exterior: i.exterior,
-                dots: &i.dots,
+                exterior: *exterior,
+                dots,
             })
             .collect();
         let residuals = control_residuals(&grid, &inner, &poses, &observations, &control_points);
         system_plots(&residuals, &grid, &rays, &rig, &plates)
     };
     plots.write_with(&[(out, json.as_bytes())], make, output)?;
-    let worst = projector
-        .rays
-        .iter()
-        .max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
-    let c = &projector.centre;
-    let cs = &projector.centre_sigma;
+    let worst = (projector.rays.iter()).max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
+    let (c, cs) = (&projector.centre, &projector.centre_sigma);
+    let frame = match projector.covariance {
+        Some(_) => "camera system",
+        None => "rig frame",
+    };
     output.result(
         &format!(
             "{model:?} model: projector centre ({:.2}, {:.2}, {:.2}) ± ({:.2}, {:.2}, {:.2}) mm \
-             in the rig frame, {} rays{}; fingerprint {} -> {}\n",
+             in the {frame}, {} rays{}; fingerprint {} -> {}\n",
             c[0],
             c[1],
             c[2],
@@ -456,8 +511,8 @@ pub fn calibrate_projector(args: &ProjectorArgs, obs: &Path, output: Output) -> 
         ),
         &serde_json::json!({
             "model": format!("{model:?}").to_lowercase(),
-            "centre_mm": c.as_slice(),
-            "centre_sigma_mm": cs.as_slice(),
+            "centre_mm": c,
+            "centre_sigma_mm": cs,
             "rays": projector.rays.len(),
             "worst_ray": worst.map(|w| serde_json::json!({"id": w.id, "miss_rms_mm": w.miss_rms})),
             "fingerprint": file.fingerprint,

@@ -443,13 +443,14 @@ impl ImageFolder {
 
 #[derive(Subcommand)]
 enum CalibrateWhat {
-    /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
-    /// writes system.json ("deltaz.system/1").
+    /// Projector calibration with the camera as a prior (the joint / non-central models: the
+    /// whole-system adjustment without the field images), or by the paper's ΔZ method (steps
+    /// 4-7): writes system.json ("deltaz.system/1").
     Projector {
         #[command(flatten)]
         args: cli::ProjectorArgs,
         /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
-        /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
+        /// `dot` rows (point = ray id) calibrate the projector (`paper`: the 1st image's frame).
         #[arg(long, required_unless_present = "images")]
         obs: Option<PathBuf>,
         #[command(flatten)]

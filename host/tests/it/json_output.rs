@@ -103,7 +103,9 @@ fn json_figures_and_ply_round_trip() {
     let ply = std::fs::read(d.join("p1.ply")).unwrap();
     let header = String::from_utf8_lossy(&ply[..600]);
     assert!(header.contains(&format!("comment calibration fingerprint: {fingerprint}\n")));
-    assert!(header.contains("comment frame: rig frame") && header.contains("property uint frame"));
+    assert!(
+        header.contains("comment frame: camera system") && header.contains("property uint frame")
+    );
     let same = json(
         d,
         "compare --reconstructed p1.ply --reference p1_points.csv",
