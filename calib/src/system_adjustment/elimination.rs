@@ -288,19 +288,21 @@ pub(super) fn covariance(kinds: &[Kind], reduced: &Reduced) -> Result<Covariance
 
 impl Covariance {
     /// Block `block` of `kind`: its covariance and its covariance with the global parameters
-    /// `at` (m × at.len(); each must be a row of the kind).
+    /// `at` (m × at.len(); each a row of the kind, or None for a parameter held fixed: zero).
     pub fn block(
         &self,
         kinds: &[Kind],
         kind: usize,
         block: usize,
-        at: &[usize],
+        at: &[Option<usize>],
     ) -> (DMatrix<f64>, DMatrix<f64>) {
         let k = &kinds[kind];
         let (off, m) = (k.offsets[block], k.sizes[block]);
         let c = &self.cross[kind];
         let cross = DMatrix::from_fn(m, at.len(), |a, b| {
-            k.row_of[at[b]].map_or(0.0, |r| c[(off + a, r)])
+            at[b]
+                .and_then(|g| k.row_of[g])
+                .map_or(0.0, |r| c[(off + a, r)])
         });
         (self.own[kind][block].clone(), cross)
     }
@@ -460,7 +462,7 @@ mod tests {
             assert!(close(dg[g], solution[g]), "global {g}");
         }
         let cov = covariance(&kinds, &reduced).unwrap();
-        let all: Vec<usize> = (0..n).collect();
+        let all: Vec<Option<usize>> = (0..n).map(Some).collect();
         for (k, kind) in kinds.iter().enumerate() {
             let base = n + kinds[..k].iter().map(Kind::width).sum::<usize>();
             for (block, step) in steps[k].iter().enumerate() {

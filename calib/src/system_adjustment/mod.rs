@@ -13,6 +13,10 @@
 //! ```
 //!
 //! and its dot in image k is the camera's image of the line's intersection with that plane.
+//! In the non-central model P is not an unknown: moving P by δ and every offset o by −δ (and
+//! P_z by δ with o by δ (a, b, 0)) leaves every line where it is, three datum defects that made
+//! its normal equations singular. P stays at its start (the ΔZ centre of the plane points), the
+//! datum of the offsets, with zero covariance; the lines, all a point depends on, are free.
 //! The field images' poses and targets are in the field's own frame, that of its control (of a
 //! free network: the bundle's datum, whose fixed pose parameters stay fixed here).
 //! Observations and weights: plate targets, dots and field targets in the image (σ per group,
@@ -20,8 +24,8 @@
 //! comes from ([`CameraSource`]): jointly from its field images in the same adjustment
 //! (`calibrate system`), or as a prior with the covariance of a previous camera calibration (so
 //! `calibrate camera` then `calibrate projector` is one adjustment, sequentially). Unknowns:
-//! [free inner | plate poses | field poses | P | plate control] (the reduced system), per ray 2
-//! (central) or 4 (non-central) parameters and per field target its 3 coordinates, both
+//! [free inner | plate poses | field poses | P (central) | plate control] (the reduced
+//! system), per ray 2 (central) or 4 (non-central) parameters and per field target its 3 coordinates, both
 //! eliminated by the Schur complement as in the bundle ([`elimination`]). Variance components:
 //! σ_g² ← σ_g² vᵀ_g P_g v_g / r_g, r_g the group's sum of redundancy numbers, until they settle;
 //! the covariances then use the estimated σ.
@@ -274,17 +278,25 @@ struct State {
 }
 
 /// Index layout of the reduced (global) system: [free inner | plate poses | free field pose
-/// parameters | P | plate control].
+/// parameters | P | plate control], P absent for the non-central model (its datum).
 struct Layout {
     inner: Vec<usize>,
     plates: usize,
     field: Vec<[Option<usize>; POSE]>,
-    centre: usize,
+    /// The first index after the field poses.
+    field_end: usize,
+    centre: Option<usize>,
     control: usize,
 }
 
 impl Layout {
-    fn new(inner: Vec<usize>, plates: usize, pose_free: &[[bool; POSE]], control: usize) -> Self {
+    fn new(
+        inner: Vec<usize>,
+        plates: usize,
+        pose_free: &[[bool; POSE]],
+        central: bool,
+        control: usize,
+    ) -> Self {
         let mut next = inner.len() + POSE * plates;
         let field = pose_free
             .iter()
@@ -301,15 +313,20 @@ impl Layout {
             inner,
             plates,
             field,
-            centre: next,
+            field_end: next,
+            centre: central.then_some(next),
             control,
         }
     }
     fn pose(&self, k: usize) -> usize {
         self.inner.len() + POSE * k
     }
+    /// The indices of P (None: held fixed).
+    fn centre(&self) -> [Option<usize>; 3] {
+        std::array::from_fn(|a| self.centre.map(|c| c + a))
+    }
     fn point(&self, j: usize) -> usize {
-        self.centre + 3 + 3 * j
+        self.field_end + if self.centre.is_some() { 3 } else { 0 } + 3 * j
     }
     fn size(&self) -> usize {
         self.point(self.control)
@@ -319,10 +336,10 @@ impl Layout {
     fn kinds(&self, ray_sizes: Vec<usize>, field_points: usize) -> [Kind; 2] {
         let n = self.size();
         let rays = (0..self.pose(self.plates))
-            .chain(self.centre..self.centre + 3)
+            .chain(self.centre().into_iter().flatten())
             .collect();
         let field = (0..self.inner.len())
-            .chain(self.pose(self.plates)..self.centre)
+            .chain(self.pose(self.plates)..self.field_end)
             .collect();
         [
             Kind::new(n, rays, ray_sizes),
@@ -493,6 +510,7 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
         inner_free.clone(),
         plates.len(),
         pose_free,
+        !input.noncentral,
         input.control.len(),
     );
     let kinds = layout.kinds(
@@ -589,13 +607,17 @@ pub fn adjust_system(input: &SystemInput) -> Result<SystemAdjustment, SystemErro
     let datum = (0..plates.len())
         .min_by(|a, b| position_variance(*a).total_cmp(&position_variance(*b)))
         .unwrap_or(0);
-    // The core [free inner | P | datum pose] of the reduced covariance.
-    let core: Vec<usize> = (0..inner_free.len())
-        .chain((0..3).map(|a| layout.centre + a))
-        .chain((0..6).map(|a| layout.pose(datum) + a))
+    // The core [free inner | P | datum pose] of the reduced covariance (P held fixed: zero).
+    let core: Vec<Option<usize>> = (0..inner_free.len())
+        .map(Some)
+        .chain(layout.centre())
+        .chain((0..6).map(|a| Some(layout.pose(datum) + a)))
         .collect();
     let core_covariance =
-        DMatrix::from_fn(core.len(), core.len(), |a, b| cov.s_inv[(core[a], core[b])]);
+        DMatrix::from_fn(core.len(), core.len(), |a, b| match (core[a], core[b]) {
+            (Some(i), Some(j)) => cov.s_inv[(i, j)],
+            _ => 0.0,
+        });
     let mut rms: Vec<(f64, usize)> = vec![(0.0, 0); ray_ids.len()];
     for row in &normal.rows {
         if let Some(Local {
@@ -721,8 +743,10 @@ fn step(
         }
         *pose = pose_from(a);
     }
-    for a in 0..3 {
-        next.centre[a] += scale * dg[layout.centre + a];
+    for (a, at) in layout.centre().iter().enumerate() {
+        if let Some(i) = at {
+            next.centre[a] += scale * dg[*i];
+        }
     }
     for (j, x) in next.control.iter_mut().enumerate() {
         for a in 0..3 {
@@ -815,9 +839,10 @@ fn assemble(setup: &Setup, state: &State, sigma: &[f64; GROUPS]) -> Result<Norma
             for (a, (_, d)) in global.iter_mut().skip(layout.inner.len()).enumerate() {
                 *d += Vector2::new(through[(0, a)], through[(1, a)]);
             }
-            for a in 0..3 {
-                let d = Vector2::new(through[(0, 6 + a)], through[(1, 6 + a)]);
-                global.push((layout.centre + a, d));
+            for (a, at) in layout.centre().iter().enumerate() {
+                if let Some(i) = at {
+                    global.push((*i, Vector2::new(through[(0, 6 + a)], through[(1, 6 + a)])));
+                }
             }
             rows.push(Linear {
                 value: r.value,

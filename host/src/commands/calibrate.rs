@@ -6,8 +6,10 @@ use anyhow::Result;
 /// What to calibrate.
 #[derive(clap::Subcommand)]
 pub enum What {
-    /// Projector calibration by the ΔZ method (steps 4-7), or the joint / non-central models:
-    /// writes system.json ("deltaz.system/2") in the plate frame of the 1st plate image.
+    /// Projector calibration with the camera as a prior (the joint / non-central models: the
+    /// whole-system adjustment without the field images; the camera system), or by the paper's
+    /// ΔZ method (steps 4-7; the plate frame of the 1st plate image): writes system.json
+    /// ("deltaz.system/2").
     Projector(calibrate_projector::Args),
     /// Camera and projector in one: the camera by bundle adjustment, then plates, control,
     /// projector and camera (as a prior) in one whole-system adjustment with variance components;

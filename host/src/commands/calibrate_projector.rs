@@ -25,10 +25,14 @@ pub struct Args {
     /// Output system.json.
     #[arg(long)]
     out: PathBuf,
-    /// `paper` (eqs 11-14), `joint` (weighted, with σ) or `noncentral` (free lines).
-    #[arg(long, default_value = "paper")]
+    /// `joint` (the whole-system adjustment with the camera as a prior: the σ of camera,
+    /// poses, projector and dots; the camera system), `noncentral` (the same, every ray a free
+    /// line) or `paper` (eqs 11-14, its σ from the dots alone, camera and poses taken as exact;
+    /// the plate frame of the 1st plate image).
+    #[arg(long, default_value = "joint")]
     model: Model,
-    /// Image noise (px, > 0) weighting the plane points and giving the rays' covariances.
+    /// Image noise (px, > 0): `paper` weights the plane points and gives the rays' covariances
+    /// with it; `joint` and `noncentral` start from it and estimate it.
     #[arg(long, default_value_t = 0.5, value_parser = positive, allow_negative_numbers = true)]
     image_sigma_px: f64,
     #[command(flatten)]
@@ -37,7 +41,7 @@ pub struct Args {
     #[arg(long)]
     strict: bool,
     /// Plate observations CSV `image,point,col,row,kind`: `control` rows resect each image,
-    /// `dot` rows (point = ray id) calibrate the projector. The 1st image defines the frame.
+    /// `dot` rows (point = ray id) calibrate the projector (`paper`: the 1st image's frame).
     #[arg(long, required_unless_present = "images")]
     obs: Option<PathBuf>,
     #[command(flatten)]
@@ -59,8 +63,9 @@ pub struct Args {
     output: OutputArgs,
 }
 
-/// Runs `deltaz calibrate projector`: resection per image (step 4), steps 5-7 (or the models
-/// beyond), system.json written atomically only when everything succeeded. Images too poorly
+/// Runs `deltaz calibrate projector`: resection per image (step 4), then the projector with the
+/// camera as a prior (or the paper's steps 5-7), system.json written atomically only when
+/// everything succeeded. Images too poorly
 /// controlled to resect and rays seen on one plate are left out (or, central models, determined
 /// through the centre) and listed on stderr and in the file; `--strict` makes them errors.
 pub fn exec(args: Args) -> Result<()> {
@@ -96,6 +101,9 @@ pub fn exec(args: Args) -> Result<()> {
         args.image_sigma_px,
     )?;
     progress.finish_and_clear();
+    for note in &system.notes {
+        eprintln!("warning: {note}");
+    }
     let warnings = &system.content.warnings;
     if args.strict {
         warnings.strict(&obs)?;
@@ -113,11 +121,8 @@ pub fn exec(args: Args) -> Result<()> {
         || system.plots(&rig),
         output,
     )?;
-    let projector = &system.projector;
-    let worst = projector
-        .rays
-        .iter()
-        .max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
+    let projector = &file.content.projector;
+    let worst = (projector.rays.iter()).max_by(|a, b| a.miss_rms.total_cmp(&b.miss_rms));
     let (c, cs, model) = (&projector.centre, &projector.centre_sigma, args.model);
     output.result(
         &format!(
@@ -141,8 +146,8 @@ pub fn exec(args: Args) -> Result<()> {
         &serde_json::json!({
             "model": format!("{model:?}").to_lowercase(),
             "frame": file.content.frame.to_string(),
-            "centre_mm": c.as_slice(),
-            "centre_sigma_mm": cs.as_slice(),
+            "centre_mm": c,
+            "centre_sigma_mm": cs,
             "rays": projector.rays.len(),
             "worst_ray": worst.map(|w| serde_json::json!({"id": w.id, "miss_rms_mm": w.miss_rms})),
             "fingerprint": file.fingerprint,

@@ -10,14 +10,21 @@
 //!   "stations": [{"image": "s1", "kappa": .., "phi": .., "omega": .., "X0": .., "Y0": .., "Z0": ..,
 //!                 "sigma": {...}, "rms_px": .., "observations": ..}],
 //!   "correlations": [{"a": "f", "b": "s1.Z0", "r": 0.93}],
+//!   "covariance": {"parameters": ["f", "cx", "cy", "k1"], "matrix": [[4.4e-3, ..], ..]},
 //!   "rms_px": 0.5, "rejected": [{"image": "s3", "point": "T07", "col": .., "row": .., "residual_px": ..}] }
 //! ```
+//!
+//! `covariance` (optional, absent from files written before it) is the covariance of the
+//! estimated inner parameters with every correlation, the a-posteriori σ0² included: what
+//! `calibrate projector` takes as the camera's prior, so that the camera's uncertainty reaches
+//! the projector and the points as in `calibrate system`.
 
 use super::atomic::write_json_atomic;
 use super::{FileError, Result};
+use deltaz_calib::system_adjustment::CameraPrior;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
-use nalgebra::Vector3;
+use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -203,6 +210,67 @@ pub struct Rejected {
     pub residual_px: f64,
 }
 
+/// The covariance of the estimated inner parameters, with every correlation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InnerCovariance {
+    /// The estimated parameters by name (of [`INNER_NAMES`]), in the matrix's order.
+    pub parameters: Vec<String>,
+    /// The covariance, row by row (the products of the parameters' units: mm², mm · mm⁻², …).
+    pub matrix: Vec<Vec<f64>>,
+}
+
+impl InnerCovariance {
+    /// The covariance of a camera calibration's prior (its free parameters in their order).
+    pub fn new(prior: &CameraPrior) -> Self {
+        Self {
+            parameters: (0..INNER_NAMES.len())
+                .filter(|k| prior.free[*k])
+                .map(|k| INNER_NAMES[k].to_owned())
+                .collect(),
+            matrix: prior
+                .covariance
+                .row_iter()
+                .map(|r| r.iter().copied().collect())
+                .collect(),
+        }
+    }
+
+    /// The prior: the free parameters and the covariance in the order of [`INNER_NAMES`];
+    /// every check of [`CameraFile`]'s reading but positive definiteness made here.
+    fn prior(&self) -> std::result::Result<CameraPrior, String> {
+        let n = self.parameters.len();
+        let mut index = Vec::with_capacity(n);
+        for name in &self.parameters {
+            let k = INNER_NAMES
+                .iter()
+                .position(|x| x == name)
+                .ok_or_else(|| format!("`covariance.parameters`: unknown parameter {name:?}"))?;
+            if index.contains(&k) {
+                return Err(format!("`covariance.parameters`: {name:?} appears twice"));
+            }
+            index.push(k);
+        }
+        if self.matrix.len() != n || self.matrix.iter().any(|r| r.len() != n) {
+            return Err(format!(
+                "`covariance.matrix` must be {n} × {n}, one row and column per parameter"
+            ));
+        }
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by_key(|&a| index[a]);
+        let covariance = DMatrix::from_fn(n, n, |a, b| self.matrix[order[a]][order[b]]);
+        if !covariance.iter().all(|v| v.is_finite())
+            || (&covariance - covariance.transpose()).amax() > 1e-9 * covariance.amax()
+        {
+            return Err("`covariance.matrix` is not a finite symmetric matrix".into());
+        }
+        let mut free = [false; 8];
+        for &k in &index {
+            free[k] = true;
+        }
+        Ok(CameraPrior { free, covariance })
+    }
+}
+
 /// `camera.json` / `camera_init.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CameraFile {
@@ -237,6 +305,9 @@ pub struct CameraFile {
     /// Iterations of the adjustment.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub iterations: Option<usize>,
+    /// The covariance of the estimated inner parameters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<InnerCovariance>,
 }
 
 impl CameraFile {
@@ -255,7 +326,28 @@ impl CameraFile {
             rms_px: None,
             rejected: Vec::new(),
             iterations: None,
+            covariance: None,
         }
+    }
+
+    /// The camera as the prior of a later adjustment (`calibrate projector`): its estimated
+    /// inner parameters with their `covariance`, or, in a file written without one, with their
+    /// σ alone (no correlations: see [`Self::covariance`]). None when no parameter has a σ (a
+    /// camera taken as exact, as `camera_init.json`).
+    pub fn prior(&self) -> Option<CameraPrior> {
+        if let Some(c) = &self.covariance {
+            return c.prior().ok();
+        }
+        let sigma = self.sigma.to_array();
+        let free: [bool; 8] = sigma.map(|s| s > 0.0);
+        let estimated: Vec<f64> = sigma.into_iter().filter(|s| *s > 0.0).collect();
+        (!estimated.is_empty()).then(|| CameraPrior {
+            free,
+            covariance: DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
+                estimated.len(),
+                estimated.iter().map(|s| s * s),
+            )),
+        })
     }
 
     /// The pixel mapping.
@@ -308,6 +400,35 @@ impl CameraFile {
                     "`image_size` {width} x {height} px exceeds the limit of {MAX_IMAGE_SIDE} px a side"
                 ),
             ));
+        }
+        if let Some(c) = &self.covariance {
+            let prior = c.prior().map_err(|e| FileError::whole(path, e))?;
+            let sigma = self.sigma.to_array();
+            let mut at = 0;
+            for (k, name) in INNER_NAMES.iter().enumerate() {
+                let variance = if prior.free[k] {
+                    at += 1;
+                    prior.covariance[(at - 1, at - 1)]
+                } else {
+                    0.0
+                };
+                if (variance.max(0.0).sqrt() - sigma[k]).abs() > 1e-6 * sigma[k].max(1e-300) {
+                    return Err(FileError::whole(
+                        path,
+                        format!(
+                            "`covariance` gives {name} a σ of {:e}, `sigma.{name}` is {:e}",
+                            variance.max(0.0).sqrt(),
+                            sigma[k]
+                        ),
+                    ));
+                }
+            }
+            if prior.covariance.clone().cholesky().is_none() {
+                return Err(FileError::whole(
+                    path,
+                    "`covariance.matrix` is not positive definite",
+                ));
+            }
         }
         let focal_px = self.inner.f / self.pixel_size;
         if focal_px > MAX_FOCAL_PX {
@@ -370,6 +491,67 @@ mod tests {
         assert_eq!(eo.centre, Vector3::new(1.0, 2.0, 3.0));
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(text.contains("\"X0\": 1.0") && text.contains("\"kappa\": 0.1"));
+    }
+
+    /// The covariance round-trips and becomes the prior in the order f, cx, cy, k1, whatever
+    /// the file's order; a file without it gives the σ alone; bad matrices name the problem.
+    #[test]
+    fn covariance_is_the_prior() {
+        let grid = PixelGrid {
+            pixel_size: 0.045,
+            width: 768,
+            height: 512,
+            origin_col: 378.0,
+            origin_row: 252.0,
+        };
+        let mut file = CameraFile::init(&grid, InnerOrientation::ideal(46.0));
+        assert_eq!(file.prior(), None);
+        file.sigma.f = 0.2;
+        file.sigma.k1 = 1e-6;
+        let diagonal = file.prior().unwrap();
+        assert_eq!(
+            diagonal.free,
+            [true, false, false, true, false, false, false, false]
+        );
+        assert_eq!(diagonal.covariance[(1, 1)], 1e-12);
+        file.covariance = Some(InnerCovariance {
+            parameters: vec!["k1".into(), "f".into()],
+            matrix: vec![vec![1e-12, -1.5e-7], vec![-1.5e-7, 0.04]],
+        });
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("camera.json");
+        write_camera(&path, &file).unwrap();
+        let back = read_camera(&path).unwrap();
+        assert_eq!(back, file);
+        let prior = back.prior().unwrap();
+        assert_eq!(prior.free, diagonal.free);
+        assert_eq!(prior.covariance[(0, 0)], 0.04);
+        assert_eq!(prior.covariance[(0, 1)], -1.5e-7);
+        let bad = |edit: &dyn Fn(&mut InnerCovariance), expect: &str| {
+            let mut f = file.clone();
+            edit(f.covariance.as_mut().unwrap());
+            write_camera(&path, &f).unwrap();
+            let e = read_camera(&path).unwrap_err().to_string();
+            assert!(e.contains("camera.json") && e.contains(expect), "{e}");
+        };
+        bad(
+            &|c| c.parameters[0] = "k9".into(),
+            "unknown parameter \"k9\"",
+        );
+        bad(&|c| c.parameters[0] = "f".into(), "\"f\" appears twice");
+        bad(&|c| c.matrix.pop().map(drop).unwrap_or(()), "must be 2 × 2");
+        bad(&|c| c.matrix[0][1] = 0.0, "not a finite symmetric matrix");
+        bad(
+            &|c| c.matrix[1][1] = 0.09,
+            "gives f a σ of 3e-1, `sigma.f` is 2e-1",
+        );
+        bad(
+            &|c| {
+                c.matrix[0][1] = -3e-7;
+                c.matrix[1][0] = -3e-7;
+            },
+            "not positive definite",
+        );
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //! [`deltaz_calib::bundle`], and the result as `camera.json` with every observation's residual.
 
 use crate::io::camera_file::{
-    CameraFile, Correlation, InnerParams, PoseParams, Rejected, Station, CAMERA_FORMAT,
+    CameraFile, Correlation, InnerCovariance, InnerParams, PoseParams, Rejected, Station,
+    CAMERA_FORMAT,
 };
 use crate::io::control::ControlPoint;
 use crate::io::observations::{Observation, PointKind};
@@ -164,6 +165,7 @@ pub fn camera_file(cal: &Calibration, observations: &[Observation]) -> CameraFil
         rms_px: Some((total.0 / (2 * total.1.max(1)) as f64).sqrt() / px),
         rejected,
         iterations: Some(cal.iterations),
+        covariance: Some(InnerCovariance::new(&camera_prior(cal))),
     }
 }
 

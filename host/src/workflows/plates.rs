@@ -231,8 +231,9 @@ mod tests {
         }
     }
 
-    /// Without noise every closed-form start is exact: the DLT and the homography of the plate's
-    /// plane for the whole control, the homography alone for the points in the plane.
+    /// Without noise every closed-form start is exact: the DLT, the homography of the plate's
+    /// plane and the three-point pose for the whole control, the homography and the three-point
+    /// pose for the points in the plane.
     #[test]
     fn closed_form_is_exact_without_noise() {
         let mut scenario = Scenario::paper();
@@ -258,10 +259,10 @@ mod tests {
                 assert!((start.r_cam_world() - truth.r_cam_world()).amax() < 1e-9);
             }
         };
-        check(&pts, 2);
+        check(&pts, 3);
         let flat: Vec<_> = pts.iter().copied().filter(|(_, x)| x.z == 0.0).collect();
         assert!(flat.len() >= 4);
-        check(&flat, 1);
+        check(&flat, 2);
         let res = resect(&grid, &inner, &flat).unwrap();
         assert!((res.exterior.centre - truth.centre).amax() < 1e-6);
     }

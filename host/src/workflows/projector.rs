@@ -1,9 +1,12 @@
 //! Plates → projector (`deltaz calibrate projector`): every plate image resected on the plate
-//! control (step 4), then the projector calibrated from the dots (steps 5-7: the paper's ΔZ
-//! method, or the joint or non-central models of [`deltaz_calib::projector_calibration`]), the
-//! system in the plate frame of the 1st plate image.
+//! control (step 4), then the projector from the dots: by default (`joint`, `noncentral`) in
+//! the whole-system adjustment of [`deltaz_calib::system_adjustment`] without the field images,
+//! the camera of `camera.json` as a prior with its covariance, so that the camera's and the
+//! plate poses' uncertainty reach the projector and every point's σ (the system in the camera
+//! system, as `calibrate system` gives it); or (`paper`) the paper's steps 5-7 with camera and
+//! poses taken as exact, the system in the plate frame of the 1st plate image.
 
-use super::plates::{plate_images, resect_all};
+use super::plates::{plate_images, plate_observations, resect_all};
 use crate::io::camera_file::read_camera;
 use crate::io::control::{read_control, ControlPoint};
 use crate::io::observations::{read_observations, Observation};
@@ -11,9 +14,9 @@ use crate::io::system_file::{SystemContent, SystemRig, Warnings};
 use crate::report::calibration_plots::{control_residuals, system_plots, PlateView, Plot};
 use anyhow::Result;
 use deltaz_calib::projector_calibration::{
-    calibrate_projector as calibrate_from_plates, check_raised_control, Model, PlateImage,
-    ProjectorCalibration,
+    calibrate_projector as calibrate_from_plates, check_raised_control, DotObservation, Model,
 };
+use deltaz_calib::system_adjustment::{adjust_system, CameraSource, SystemInput};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::collinearity::ExteriorOrientation;
 use std::path::Path;
@@ -21,29 +24,29 @@ use std::path::Path;
 /// A projector calibrated on plate images, with what it was calibrated from.
 #[derive(Debug, Clone)]
 pub struct ProjectorSystem {
-    /// The system (plate frame of the 1st plate image, with what was left out).
+    /// The system, with what was left out.
     pub content: SystemContent,
-    /// The projector calibration.
-    pub projector: ProjectorCalibration,
     /// The camera's raster.
     pub grid: PixelGrid<f64>,
-    /// The camera's inner orientation.
+    /// The camera's inner orientation the calibration ends with.
     pub inner: InnerOrientation<f64>,
-    /// The resected plate images and their dots.
-    pub images: Vec<PlateImage>,
-    /// Their labels and poses.
-    pub poses: Vec<(String, ExteriorOrientation<f64>)>,
+    /// Each plate image: label, pose and dots.
+    pub views: Vec<(String, ExteriorOrientation<f64>, Vec<DotObservation>)>,
     /// The plate observations.
     pub observations: Vec<Observation>,
     /// The plate control.
     pub control: Vec<ControlPoint>,
+    /// What the user should know about the inputs (a camera file without its covariance).
+    pub notes: Vec<String>,
 }
 
 /// Calibrates the projector from the plate observations `obs` (their `control` rows resect
 /// each image, their `dot` rows calibrate the projector) on the plate control `control`, with
-/// the camera of `camera` and `model`; `image_sigma_px` weights the plane points and gives the
-/// rays' covariances. Images too poorly controlled to resect and rays seen on one plate are left
-/// out (or, central models, determined through the centre) and listed in the system's warnings.
+/// the camera of `camera` and `model`. `image_sigma_px` is the dots' image noise: `paper`
+/// weights the plane points and gives the rays' covariances with it, `joint` and `noncentral`
+/// start from it and estimate it. Images too poorly controlled to resect and rays seen on one
+/// plate are left out (or, central models, determined through the centre) and listed in the
+/// system's warnings.
 pub fn calibrate_projector(
     camera: &Path,
     control: &Path,
@@ -51,6 +54,7 @@ pub fn calibrate_projector(
     model: Model,
     image_sigma_px: f64,
 ) -> Result<ProjectorSystem> {
+    let camera_path = camera;
     let camera = read_camera(camera)?;
     let (grid, inner) = (camera.grid(), camera.inner());
     let control_points = read_control(control)?;
@@ -61,33 +65,78 @@ pub fn calibrate_projector(
     check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
     let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
-    let poses: Vec<_> = resected
-        .results
-        .iter()
-        .map(|(image, r)| (image.clone(), r.exterior))
-        .collect();
     let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", obs.display());
-    let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
-    let projector = calibrate_from_plates(&grid, &inner, &images, model, image_sigma_px)
-        .map_err(|e| in_file(&e))?;
-    // The rig frame is the 1st plate image's.
-    let first = poses.first().map(|(image, pose)| (image.as_str(), *pose));
-    let first = first.ok_or_else(|| in_file(&"no plate image could be resected"))?;
-    let mut content = SystemContent::new(grid, inner, first, &projector);
-    content.warnings = Warnings {
-        left_out_images: resected.left_out,
-        single_plane_rays: projector.single_plane.clone(),
-        left_out_rays: projector.left_out.clone(),
+    let mut notes = Vec::new();
+    let (content, inner, views) = if model == Model::Paper {
+        let poses: Vec<_> = resected
+            .results
+            .iter()
+            .map(|(image, r)| (image.clone(), r.exterior))
+            .collect();
+        let images = plate_images(&observations, &poses).map_err(|e| in_file(&e))?;
+        let projector = calibrate_from_plates(&grid, &inner, &images, model, image_sigma_px)
+            .map_err(|e| in_file(&e))?;
+        // The rig frame is the 1st plate image's.
+        let first = poses.first().map(|(image, pose)| (image.as_str(), *pose));
+        let first = first.ok_or_else(|| in_file(&"no plate image could be resected"))?;
+        let mut content = SystemContent::new(grid, inner, first, &projector);
+        content.warnings = Warnings {
+            left_out_images: resected.left_out,
+            single_plane_rays: projector.single_plane.clone(),
+            left_out_rays: projector.left_out.clone(),
+        };
+        let views = poses
+            .into_iter()
+            .zip(images)
+            .map(|((image, exterior), i)| (image, exterior, i.dots));
+        (content, inner, views.collect())
+    } else {
+        let prior = camera.prior();
+        if prior.is_some() && camera.covariance.is_none() {
+            notes.push(format!(
+                "{}: no `covariance` (written by an older deltaz): the camera's prior takes its \
+                 σ without their correlations; calibrate the camera again for the stated σ to \
+                 hold",
+                camera_path.display()
+            ));
+        }
+        let noncentral = model == Model::Noncentral;
+        let plates = plate_observations(&observations, &control_points, &resected.results)
+            .map_err(|e| in_file(&e))?;
+        let adjustment = adjust_system(&SystemInput {
+            grid,
+            inner,
+            camera: prior.map_or(CameraSource::Fixed, CameraSource::Prior),
+            control: &control_points,
+            plates: plates.clone(),
+            noncentral,
+            image_sigma_px,
+        })
+        .map_err(|e| in_file(&format!("system adjustment: {e}")))?;
+        let warnings = Warnings {
+            left_out_images: resected.left_out,
+            single_plane_rays: if noncentral {
+                Vec::new()
+            } else {
+                adjustment.single_plane.clone()
+            },
+            left_out_rays: adjustment.left_out.clone(),
+        };
+        let content = SystemContent::from_adjustment(grid, &adjustment, noncentral, warnings);
+        let views = plates
+            .into_iter()
+            .zip(&adjustment.poses)
+            .map(|(p, exterior)| (p.image, *exterior, p.dots));
+        (content, adjustment.model.inner, views.collect())
     };
     Ok(ProjectorSystem {
         content,
-        projector,
         grid,
         inner,
-        images,
-        poses,
+        views,
         observations,
         control: control_points,
+        notes,
     })
 }
 
@@ -95,26 +144,23 @@ impl ProjectorSystem {
     /// The calibration's plots ([`system_plots`]): the plate images' control residuals, the
     /// rays' miss distances and every plate reconstructed with `rig`.
     pub fn plots(&self, rig: &SystemRig) -> Result<Vec<Plot>> {
-        let rays: Vec<_> = self
-            .projector
-            .rays
-            .iter()
+        let rays: Vec<_> = (self.content.projector.rays.iter())
             .map(|r| (r.id, r.miss_rms, r.miss_max))
             .collect();
-        let plates: Vec<_> = self
-            .images
-            .iter()
-            .zip(&self.poses)
-            .map(|(i, (image, _))| PlateView {
+        let poses: Vec<_> = (self.views.iter())
+            .map(|(image, exterior, _)| (image.clone(), *exterior))
+            .collect();
+        let plates: Vec<_> = (self.views.iter())
+            .map(|(image, exterior, dots)| PlateView {
                 image,
-                exterior: i.exterior,
-                dots: &i.dots,
+                exterior: *exterior,
+                dots,
             })
             .collect();
         let residuals = control_residuals(
             &self.grid,
             &self.inner,
-            &self.poses,
+            &poses,
             &self.observations,
             &self.control,
         );

@@ -92,6 +92,9 @@ fn stream_matches_reconstruct() {
         &p("plate_obs.csv"),
         "--out",
         &p("system.json"),
+        // The 1st plate image's frame, where `stream --simulate` puts its plates.
+        "--model",
+        "paper",
     ]);
     let upload = ok(&["device", "upload", &p("system.json")]);
     assert!(upload.contains("read back, generation 1"), "{upload}");

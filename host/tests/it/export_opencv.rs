@@ -141,7 +141,7 @@ fn opencv_projection_reproduces_the_residuals() {
     check(&desk, 0.05);
 }
 
-/// From system.json: one extrinsic row, the camera's pose in the rig frame, named `rig`.
+/// From system.json: one extrinsic row, the camera's pose in the system's frame, named `rig`.
 #[test]
 fn from_a_system_file() {
     let dir = tempfile::tempdir().unwrap();
@@ -155,14 +155,14 @@ fn from_a_system_file() {
     );
     deltaz(
         d,
-        "calibrate projector --camera camera.json --control plate_control.csv --obs plate_obs.csv --out system.json",
+        "calibrate projector --camera camera.json --control plate_control.csv --obs plate_obs.csv --out system.json --model paper",
     );
     deltaz(d, "export opencv --system system.json --out system.yml");
     let yaml = std::fs::read_to_string(d.join("system.yml")).unwrap();
     assert!(yaml.contains("image_names: [ \"rig\" ]"), "{yaml}");
     let extrinsic = yaml_numbers(&yaml, "extrinsic_parameters");
     assert_eq!(extrinsic.len(), 6);
-    // The rig frame is the 1st plate image's: its camera sits ~1843 mm above the plate
+    // A `--model paper` system is in the 1st plate image's frame: its camera sits ~1843 mm above the plate
     // (Table 2), which OpenCV's tvec = −R X0 puts on its +z axis.
     assert!((extrinsic[5] - 1843.0).abs() < 20.0, "{extrinsic:?}");
 }

@@ -1,5 +1,6 @@
-//! The frame a system knows and every output states: a `calibrate projector` system is in the
-//! plate frame of its 1st plate image, a `calibrate system` one in the camera system; the PLY
+//! The frame a system knows and every output states: a `calibrate projector --model paper`
+//! system is in the plate frame of its 1st plate image, a `calibrate projector` (joint) or
+//! `calibrate system` one in the camera system; the PLY
 //! header, the CSV's first line, the message and `--json` of `reconstruct` say which, and a frame
 //! the system cannot give is refused.
 
@@ -83,6 +84,8 @@ fn every_output_states_the_systems_frame() {
         "plate_obs.csv",
         "--out",
         "projector.json",
+        "--model",
+        "paper",
     ];
     let text = ok(deltaz(d, &projector));
     assert!(text.contains("in the plate frame of image p1"), "{text}");
@@ -123,6 +126,16 @@ fn every_output_states_the_systems_frame() {
         "{err}"
     );
     assert!(!d.join("cloud.ply").exists());
+
+    // The joint model (the default) calibrates in the camera system.
+    let joint = &projector[..projector.len() - 2];
+    let text = ok(deltaz(d, joint));
+    assert!(text.contains("in the camera system"), "{text}");
+    let (json, ply, _) = reconstruct(d, "projector.json", &[]);
+    assert_eq!(
+        (json["frame"].as_str(), ply.as_str()),
+        (Some("the camera system"), "the camera system")
+    );
 
     let system = [
         "calibrate",

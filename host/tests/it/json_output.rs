@@ -104,8 +104,10 @@ fn json_figures_and_ply_round_trip() {
     let header = String::from_utf8_lossy(&ply[..600]);
     assert!(header.contains(&format!("comment calibration fingerprint: {fingerprint}\n")));
     assert!(
-        header.contains("comment frame: the plate frame of image p1\n")
-            && header.contains("property uint frame")
+        header.contains(
+            "comment frame: the camera system
+"
+        ) && header.contains("property uint frame")
     );
     let same = json(
         d,

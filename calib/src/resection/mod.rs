@@ -2,15 +2,21 @@
 //! step 4, Table 2).
 //!
 //! 1. Closed-form starts for any configuration with a unique solution ([`closed_form_starts`]):
-//!    the homography of the dominant plane decomposed into rotation and translation (all points
-//!    in one plane, or a plane with a few raised points: ≥ 4 points in the plane), and the DLT
-//!    (11 parameters, ≥ 6 points off one plane). Each is refined; the one with the smallest
-//!    weighted residual wins, so a weak DLT (few raised points) cannot spoil a good planar start.
+//!    the homography of the coplanar subset (the plane through three of the points that holds
+//!    the most of them) decomposed into rotation and translation (all points in one plane, or a
+//!    plane with a few raised points: ≥ 4 points in the plane), and the DLT
+//!    (11 parameters, ≥ 6 points off one plane), and the perspective-three-point pose of three
+//!    well-spread points ([`p3p`]) that best fits the others (any 4 points or more). Each is
+//!    refined; the one with the smallest weighted residual wins, so a weak DLT (few raised
+//!    points) cannot spoil a good planar start, nor a plane of three collinear points and one
+//!    more a pose that the raised points decide.
 //! 2. Gauss-Newton (with step halving) on κ, φ, ω, X0, Y0, Z0 with the residual of
 //!    [`crate::residual`] (inner orientation known), control held fixed but weighted by its σ:
 //!    an image point's variance is σ_image² + (f / depth)² σ_control².
 //! 3. σ of each parameter from σ0² (JᵀPJ)⁻¹, σ0² = vᵀPv / (2n − 6) (P relative to the image
 //!    noise, so σ0 is in mm in the image).
+
+mod p3p;
 
 use crate::residual::{image_residual, POSE};
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
@@ -52,7 +58,7 @@ impl fmt::Display for ResectionError {
         match self {
             ResectionError::TooFewPoints { given, needed } => write!(
                 f,
-                "too few control points: {given} (need {needed}: 6 non-coplanar or 4 coplanar)"
+                "too few control points: {given} (need {needed})"
             ),
             ResectionError::Collinear => f.write_str("the control points are collinear"),
             ResectionError::BehindCamera => f.write_str("the control points lie behind the camera"),
@@ -270,31 +276,65 @@ fn normalised(inner: &InnerOrientation<f64>, observed: &[Vector2<f64>]) -> Vec<V
         .collect()
 }
 
-/// The points of the dominant plane: the least-squares plane of all points, the farthest point
-/// dropped until every remaining one lies within 1e-3 of the spread of the plane (the plate,
-/// without its raised points). None with fewer than 4 left.
-fn dominant_plane(world: &[Vector3<f64>]) -> Option<Vec<usize>> {
-    let mut kept: Vec<usize> = (0..world.len()).collect();
-    while kept.len() >= 4 {
-        let pts: Vec<Vector3<f64>> = kept.iter().map(|&i| world[i]).collect();
-        let s = shape(&pts);
-        let normal = s.axes.column(2);
-        let (far, distance) = kept
-            .iter()
-            .enumerate()
-            .map(|(k, &i)| (k, (world[i] - s.centroid).dot(&normal).abs()))
-            .max_by(|a, b| a.1.total_cmp(&b.1))?;
-        if distance <= 1e-3 * s.spread.x {
-            return (s.spread.y >= 1e-6 * s.spread.x).then_some(kept);
+/// At most this many point-to-plane tests in the search for the coplanar subset: every triple
+/// of up to 30 points, a fixed sample of the triples beyond (RANSAC).
+const PLANE_TESTS: usize = 200_000;
+
+/// The coplanar subset: of the planes through three of the points, the one that holds the most
+/// of them (within 1e-3 of the points' spread `scale`; the first found on a tie), every triple
+/// tried for small sets and a fixed pseudo-random sample of them for large ones. A least-squares
+/// plane would be tilted by the raised points and lose the plate; a plane through three points
+/// is not. None when no plane holds 4 points that are not collinear.
+fn coplanar_subset(world: &[Vector3<f64>], scale: f64) -> Option<Vec<usize>> {
+    let n = world.len();
+    let tolerance = 1e-3 * scale;
+    let in_plane = |(a, b, c): (usize, usize, usize)| -> Option<Vec<usize>> {
+        let normal = (world[b] - world[a]).cross(&(world[c] - world[a]));
+        let norm = normal.norm();
+        if norm <= 1e-6 * scale * scale {
+            return None;
         }
-        kept.remove(far);
+        let normal = normal / norm;
+        let held: Vec<usize> = (0..n)
+            .filter(|&i| (world[i] - world[a]).dot(&normal).abs() <= tolerance)
+            .collect();
+        (held.len() >= 4).then_some(held)
+    };
+    let triples = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
+    let sample = (PLANE_TESTS / n.max(1)).max(1);
+    let candidates: Vec<(usize, usize, usize)> = if triples <= sample {
+        (0..n)
+            .flat_map(|a| (a + 1..n).flat_map(move |b| (b + 1..n).map(move |c| (a, b, c))))
+            .collect()
+    } else {
+        let mut state = 0x853c_49e6_748f_ea9b_u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 33) as usize % n
+        };
+        (0..sample).map(|_| (next(), next(), next())).collect()
+    };
+    let mut best: Option<Vec<usize>> = None;
+    for held in candidates.into_iter().filter_map(in_plane) {
+        if best.as_ref().is_none_or(|b| held.len() > b.len()) {
+            let all = held.len() == n;
+            best = Some(held);
+            if all {
+                break;
+            }
+        }
     }
-    None
+    best.filter(|held| {
+        let s = shape(&held.iter().map(|&i| world[i]).collect::<Vec<_>>());
+        s.spread.y >= 1e-6 * s.spread.x
+    })
 }
 
-/// The closed-form starts: the homography of the dominant plane (≥ 4 points in it) and, with
-/// ≥ 6 points off one plane, the DLT. Starts that put most points behind the camera are dropped;
-/// when none is left the error says why.
+/// The closed-form starts: the homography of the coplanar subset (≥ 4 points in one plane),
+/// with ≥ 6 points off one plane the DLT, and the three-point pose. Starts that put most points
+/// behind the camera are dropped; when none is left the error says why.
 pub fn closed_form_starts(
     inner: &InnerOrientation<f64>,
     observed: &[Vector2<f64>],
@@ -314,19 +354,14 @@ pub fn closed_form_starts(
     let uv = normalised(inner, observed);
     let planar = s.spread.z < 1e-3 * s.spread.x;
     let mut candidates = Vec::new();
-    if let Some(plane) = dominant_plane(world) {
+    if let Some(plane) = coplanar_subset(world, s.scale) {
         let (uv_p, world_p): (Vec<_>, Vec<_>) = plane.iter().map(|&i| (uv[i], world[i])).unzip();
         candidates.push(homography_start(&shape(&world_p), &uv_p, &world_p));
     }
     if !planar && n >= 6 {
         candidates.push(dlt_start(&s, &uv, world));
     }
-    if candidates.is_empty() {
-        return Err(ResectionError::TooFewPoints {
-            given: n,
-            needed: 6,
-        });
-    }
+    candidates.push(three_point_start(&uv, world));
     let mut error = ResectionError::BehindCamera;
     let mut starts = Vec::new();
     for candidate in candidates {
@@ -353,6 +388,39 @@ pub fn closed_form_starts(
         return Err(error);
     }
     Ok(starts)
+}
+
+/// The three-point pose ([`p3p`]) of a well-spread triple (the point farthest from the
+/// centroid, the one farthest from it, the one farthest from their line) that puts every point
+/// in front of the camera with the smallest residual in normalised coordinates.
+fn three_point_start(
+    uv: &[Vector2<f64>],
+    world: &[Vector3<f64>],
+) -> Result<(Matrix3<f64>, Vector3<f64>), ResectionError> {
+    let centroid = world.iter().sum::<Vector3<f64>>() / world.len() as f64;
+    let farthest = |score: &dyn Fn(&Vector3<f64>) -> f64| {
+        (0..world.len())
+            .max_by(|&a, &b| score(&world[a]).total_cmp(&score(&world[b])))
+            .unwrap_or(0)
+    };
+    let a = farthest(&|x| (x - centroid).norm_squared());
+    let b = farthest(&|x| (x - world[a]).norm_squared());
+    let edge = world[b] - world[a];
+    let c = farthest(&|x| (x - world[a]).cross(&edge).norm_squared());
+    let triple = [a, b, c];
+    let bearings = triple.map(|i| -Vector3::new(uv[i].x, uv[i].y, 1.0).normalize());
+    let misfit = |(r, centre): &(Matrix3<f64>, Vector3<f64>)| {
+        world.iter().zip(uv).try_fold(0.0, |sum, (x, o)| {
+            let p = r * (x - centre);
+            (p.z < 0.0).then(|| sum + (Vector2::new(p.x / p.z, p.y / p.z) - o).norm_squared())
+        })
+    };
+    p3p::p3p(&bearings, &triple.map(|i| world[i]))
+        .into_iter()
+        .filter_map(|pose| misfit(&pose).map(|m| (m, pose)))
+        .min_by(|x, y| x.0.total_cmp(&y.0))
+        .map(|(_, pose)| pose)
+        .ok_or(ResectionError::BehindCamera)
 }
 
 /// The null vector of a design matrix (right singular vector of the smallest singular value).
@@ -489,6 +557,20 @@ fn refine(
         let converged =
             step.fixed_rows::<3>(0).amax() < 1e-12 && step.fixed_rows::<3>(3).amax() < 1e-9;
         if converged {
+            // The same rotation by its canonical angles (|φ| ≤ π/2, κ and ω in (−π, π]): a start
+            // far off may converge to an equivalent set, κ + π, π − φ, ω + π.
+            let (kappa, phi, omega) = angles_from_matrix(&pose.r_cam_world());
+            let turned = [kappa - pose.kappa, phi - pose.phi, omega - pose.omega];
+            if turned.iter().any(|d| d.abs() > 1e-9) {
+                pose = ExteriorOrientation {
+                    kappa,
+                    phi,
+                    omega,
+                    ..pose
+                };
+                current = system(&pose, &weights);
+                continue;
+            }
             let renewed = obs.weights(inner.f, &pose);
             if renewed
                 .iter()
