@@ -2,6 +2,7 @@
 //! text beside them) and an `exec` that maps files and options to library calls; [`Command`] lists
 //! them (`main.rs` parses and dispatches).
 
+mod analyse;
 mod args;
 mod bench;
 mod bench_measure;
@@ -68,6 +69,13 @@ pub enum Command {
         /// The format.
         what: export::What,
     },
+    /// The back analysis: the measures a scoliosis screening reads, from scans of a back, and
+    /// their follow-up.
+    Analyse {
+        #[command(subcommand)]
+        /// A back, or two analyses compared.
+        what: analyse::What,
+    },
     /// Timings: camera calibration and the whole-system adjustment of the paper scenario and of
     /// a large network (with five plates of 440 dots).
     Bench(bench::Args),
@@ -88,6 +96,7 @@ impl Command {
             Command::Calibrate { what } => calibrate::exec(what),
             Command::Device(args) => device::exec(args),
             Command::Export { what } => export::exec(what),
+            Command::Analyse { what } => analyse::exec(what),
             Command::Bench(args) => bench::exec(args),
         }
     }

@@ -5,6 +5,7 @@
 //! Readers fail with a [`FileError`] naming the file, the line and the problem; writers go through
 //! [`atomic::write_atomic`], so a failed run never leaves a partial file behind.
 
+pub mod analysis_file;
 pub mod atomic;
 pub mod camera_file;
 pub mod control;

@@ -27,6 +27,9 @@ pub struct CloudInfo {
     pub fingerprint: Option<String>,
     /// Each point's frame index (written as the `frame` property when present).
     pub frames: Option<Vec<u32>>,
+    /// The step the dots' centroids were quantised to on the way to the device (px), for
+    /// clouds the device computed.
+    pub centroid_step_px: Option<f64>,
 }
 
 /// Which properties every vertex of a cloud has.
@@ -70,6 +73,9 @@ pub fn header(count: usize, layout: &Layout, info: &CloudInfo) -> String {
     );
     if let Some(fingerprint) = &info.fingerprint {
         out += &format!("comment calibration fingerprint: {fingerprint}\n");
+    }
+    if let Some(q) = info.centroid_step_px {
+        out += &format!("comment centroid quantisation: {q} px\n");
     }
     if layout.frame {
         out += "comment frame property: index of the image in the observations, from 0\n";
@@ -128,11 +134,36 @@ pub fn push_point(
     }
 }
 
-/// The labelled points of a PLY cloud for `compare`: the label is the `ray_id` (with a `frame`
-/// property `frame:ray_id`), or the vertex index without one. Reads ASCII and binary little
-/// endian vertices of scalar properties; the vertex count is checked against the file's size
-/// before anything is allocated.
-pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
+/// A point cloud read back: its vertices and what its header says.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Cloud {
+    /// The frame the header names (`comment frame: …`), if any.
+    pub frame: Option<String>,
+    /// The calibration's fingerprint the header names, if any.
+    pub fingerprint: Option<String>,
+    /// The device's centroid quantisation step the header names (px), if any.
+    pub centroid_step_px: Option<f64>,
+    /// The vertices, in the file's order.
+    pub vertices: Vec<Vertex>,
+}
+
+/// One vertex: its point and the properties deltaz writes, where the file has them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Vertex {
+    /// x, y, z.
+    pub point: Vector3<f64>,
+    /// `ray_id`.
+    pub ray: Option<u16>,
+    /// `frame`: the index of the point's image.
+    pub frame: Option<u32>,
+    /// `sigma_x`, `sigma_y`, `sigma_z`.
+    pub sigma: Option<Vector3<f64>>,
+}
+
+/// Reads a PLY cloud: ASCII or binary little endian vertices of scalar properties (x, y, z and
+/// any others; deltaz's `ray_id`, `frame` and `sigma_*` are kept), the vertex count checked
+/// against the file's size before anything is allocated.
+pub fn read_cloud(path: &Path) -> Result<Cloud> {
     let bytes = std::fs::read(path).map_err(|e| FileError::whole(path, e.to_string()))?;
     let end = bytes
         .windows(11)
@@ -141,6 +172,7 @@ pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
     let header = std::str::from_utf8(&bytes[..end])
         .map_err(|_| FileError::whole(path, "the PLY header is not text"))?;
     let body = &bytes[end + 11..];
+    let mut cloud = Cloud::default();
     let mut ascii = None;
     let mut count = None;
     let mut properties: Vec<(String, &str)> = Vec::new();
@@ -165,7 +197,22 @@ pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
                 scalar_size(kind).ok_or_else(|| at(format!("property type {kind:?}")))?;
                 properties.push((name.to_owned(), kind));
             }
-            ["comment", ..] | ["obj_info", ..] | [] => {}
+            ["comment", ..] => {
+                let text = line["comment".len()..].trim();
+                if let Some(frame) = text.strip_prefix("frame: ") {
+                    cloud.frame = Some(frame.to_owned());
+                }
+                if let Some(f) = text.strip_prefix("calibration fingerprint: ") {
+                    cloud.fingerprint = Some(f.to_owned());
+                }
+                if let Some(q) = text.strip_prefix("centroid quantisation: ") {
+                    let q = q.trim_end_matches(" px").parse::<f64>();
+                    let q = q.ok().filter(|q| q.is_finite() && *q > 0.0);
+                    cloud.centroid_step_px =
+                        Some(q.ok_or_else(|| at(format!("centroid quantisation {text:?}")))?);
+                }
+            }
+            ["obj_info", ..] | [] => {}
             _ => return Err(at(format!("unexpected header line {line:?}"))),
         }
     }
@@ -180,6 +227,10 @@ pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
         return Err(FileError::whole(path, "the PLY vertices lack x, y or z"));
     };
     let (ray, frame) = (column("ray_id"), column("frame"));
+    let sigma = match (column("sigma_x"), column("sigma_y"), column("sigma_z")) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
     let row_size: usize = properties.iter().filter_map(|(_, k)| scalar_size(k)).sum();
     let least = if ascii {
         2 * properties.len()
@@ -196,7 +247,7 @@ pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
         .ok()
         .filter(|_| ascii)
         .map(|text| text.lines());
-    let mut points = Vec::with_capacity(count);
+    cloud.vertices.reserve(count);
     for vertex in 0..count {
         let problem = |p: &str| FileError::whole(path, format!("vertex {vertex}: {p}"));
         let values: Vec<f64> = match ascii_lines.as_mut() {
@@ -222,20 +273,41 @@ pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
         if values.len() != properties.len() || values.iter().any(|v| !v.is_finite()) {
             return Err(problem("wrong count of values or a value not finite"));
         }
-        let label = match ray {
-            Some(r) => values[r].to_string(),
-            None => vertex.to_string(),
+        let whole = |v: f64, max: f64| (v >= 0.0 && v <= max && v.fract() == 0.0).then_some(v);
+        let ray = match ray {
+            Some(r) => Some(whole(values[r], 65535.0).ok_or_else(|| problem("ray_id"))? as u16),
+            None => None,
         };
-        let frame = frame.map(|f| values[f]);
-        points.push((label, frame, Vector3::new(values[x], values[y], values[z])));
+        let frame = match frame {
+            Some(f) => Some(whole(values[f], 4e9).ok_or_else(|| problem("frame"))? as u32),
+            None => None,
+        };
+        cloud.vertices.push(Vertex {
+            point: Vector3::new(values[x], values[y], values[z]),
+            ray,
+            frame,
+            sigma: sigma.map(|[a, b, c]| Vector3::new(values[a], values[b], values[c])),
+        });
     }
+    Ok(cloud)
+}
+
+/// The labelled points of a PLY cloud for `compare`: the label is the `ray_id` (with a `frame`
+/// property `frame:ray_id`, when the cloud holds several frames), or the vertex index without
+/// one.
+pub fn read_points(path: &Path) -> Result<Vec<(String, Vector3<f64>)>> {
+    let vertices = read_cloud(path)?.vertices;
     // The frame joins the label only when the cloud holds several frames.
-    let several = points.windows(2).any(|w| w[0].1 != w[1].1);
-    Ok(points
-        .into_iter()
-        .map(|(label, frame, point)| match frame.filter(|_| several) {
-            Some(f) => (format!("{f}:{label}"), point),
-            None => (label, point),
+    let several = vertices.windows(2).any(|w| w[0].frame != w[1].frame);
+    Ok(vertices
+        .iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let label = v.ray.map_or(k.to_string(), |r| r.to_string());
+            match v.frame.filter(|_| several) {
+                Some(f) => (format!("{f}:{label}"), v.point),
+                None => (label, v.point),
+            }
         })
         .collect())
 }
@@ -324,6 +396,7 @@ mod tests {
             frame: FRAME.to_owned(),
             fingerprint: Some("f0ce4228bb54066c".into()),
             frames: Some(vec![0, 3]),
+            centroid_step_px: Some(0.015625),
         };
         let mut second = point(false);
         second.point.x = 7.0;
@@ -345,6 +418,18 @@ mod tests {
             );
             assert_eq!(back[1].0, "3:203");
             assert_eq!(back[1].1.x, 7.0);
+            let cloud = read_cloud(&path).unwrap();
+            assert_eq!(cloud.frame.as_deref(), Some(FRAME));
+            assert_eq!(cloud.fingerprint.as_deref(), Some("f0ce4228bb54066c"));
+            assert_eq!(cloud.centroid_step_px, Some(0.015625));
+            assert_eq!(
+                cloud
+                    .vertices
+                    .iter()
+                    .map(|v| (v.ray, v.frame))
+                    .collect::<Vec<_>>(),
+                [(Some(203), Some(0)), (Some(203), Some(3))]
+            );
             std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
             let e = read_points(&path).unwrap_err().to_string();
             assert!(e.contains("c.ply") && e.contains("vert"), "{e}");

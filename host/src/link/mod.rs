@@ -46,3 +46,12 @@ pub fn miss_saturated_mm() -> f64 {
     use deltaz_shared::protocol::fixed::{MISS_SATURATED, MISS_UNITS_PER_MM};
     f64::from(MISS_SATURATED) / MISS_UNITS_PER_MM
 }
+
+/// The step (px) a device's centroids are quantised to on the wire for a sensor of `width` ×
+/// `height` pixels: its points carry that rounding (a uniform error, variance step²/12 per
+/// coordinate).
+pub fn centroid_step_px(width: u32, height: u32) -> f64 {
+    0.5_f64.powi(i32::from(deltaz_shared::protocol::centroid_fraction_bits(
+        width, height,
+    )))
+}

@@ -19,6 +19,9 @@ const PAPER_SUBDIVISION: u16 = 7;
 /// The grid row and column of Table 4's ray "01".
 const PAPER_TABLE4_ORIGIN: (u16, u16) = (3, 3);
 
+/// A ray's id is its grid node's row · `ID_STRIDE` + column.
+pub const ID_STRIDE: u16 = 100;
+
 /// The grid node (row, col) of Table 4's label "ij" = `[i, j]` in the paper pattern.
 pub const fn table4_node([i, j]: [u16; 2]) -> (u16, u16) {
     (
@@ -127,9 +130,9 @@ impl PatternSpec {
         )
     }
 
-    /// The id of grid node (row, col): row·100 + col.
+    /// The id of grid node (row, col): row·[`ID_STRIDE`] + col.
     pub fn id(&self, row: u16, col: u16) -> u16 {
-        row * 100 + col
+        row * ID_STRIDE + col
     }
 
     /// Every ray in the camera system, sorted by id. `r_cam_proj` turns projector-frame vectors

@@ -5,6 +5,7 @@
 //! simulated rigs ([`accuracy`], [`bench`], [`demo`]).
 
 pub mod accuracy;
+pub mod back;
 pub mod bench;
 pub mod board;
 pub mod camera;

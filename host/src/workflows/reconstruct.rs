@@ -370,7 +370,7 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<StreamSummary> {
     let info = CloudInfo {
         frame: frame.clone(),
         fingerprint: Some(system.fingerprint.clone()),
-        frames: None,
+        ..CloudInfo::default()
     };
     let (cloud, mut cloud_file) = Pending::new(&args.out, "ply")?;
     let copied = (|| -> std::io::Result<()> {

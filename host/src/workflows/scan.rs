@@ -386,10 +386,13 @@ fn scan_into(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec} {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    let grid = rig.grid();
     let info = CloudInfo {
         frame: frame.to_owned(),
         fingerprint: Some(format!("{fingerprint:016x}")),
         frames: None,
+        centroid_step_px: matches!(args.on, ScanOn::Device { .. })
+            .then(|| crate::link::centroid_step_px(grid.width, grid.height)),
     };
     let (mut all, mut all_frames) = (Vec::new(), Vec::new());
     let mut staged = Staged::default();

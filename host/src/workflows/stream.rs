@@ -299,6 +299,9 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
             frame: frame.clone().unwrap_or_default(),
             fingerprint: fingerprint.map(|f| format!("{f:016x}")),
             frames: Some(point_frames),
+            centroid_step_px: loaded.as_ref().map(|(_, rig, _)| {
+                crate::link::centroid_step_px(rig.grid().width, rig.grid().height)
+            }),
         };
         encode_with(&points, Encoding::BinaryLittleEndian, &info)
     });

@@ -39,7 +39,6 @@ use anyhow::{Context, Result};
 use deltaz_calib::system_adjustment::Frame;
 use deltaz_measure::MeasureParams;
 use deltaz_shared::identify::DepthRange;
-use deltaz_shared::protocol::centroid_fraction_bits;
 use deltaz_shared::rig::Method;
 use nalgebra::DMatrix;
 use serde_json::json;
@@ -114,7 +113,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     // The device computes from each dot quantised to q = 2^-bits px (a uniform error, variance
     // q²/12 per coordinate), which adds to the image noise's share of the floor.
     let grid = cal.rig.grid();
-    let q = 0.5_f64.powi(i32::from(centroid_fraction_bits(grid.width, grid.height)));
+    let q = crate::link::centroid_step_px(grid.width, grid.height);
     let s2 = model.sigma_dots_px * model.sigma_dots_px;
     let quantised = (s2 + q * q / 12.0) / s2;
     let split = model.core_split()?;
@@ -258,6 +257,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
         frame: system.content.frame.to_string(),
         fingerprint: Some(system.fingerprint.clone()),
         frames: Some(cloud_frames),
+        centroid_step_px: Some(q),
     };
     let ply = encode_with(&cloud, Encoding::BinaryLittleEndian, &info);
     steps.finish_and_clear();

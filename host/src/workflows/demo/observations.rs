@@ -332,6 +332,10 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
         frame: system.content.frame.to_string(),
         fingerprint: Some(system.fingerprint.clone()),
         frames: None,
+        centroid_step_px: Some(crate::link::centroid_step_px(
+            cal.rig.grid().width,
+            cal.rig.grid().height,
+        )),
     };
     let ply = encode_with(&cloud, Encoding::BinaryLittleEndian, &info);
     steps.inc(1);

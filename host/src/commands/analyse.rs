@@ -1,0 +1,166 @@
+//! `deltaz analyse back|compare`.
+
+use super::args::OutputArgs;
+use crate::io::analysis_file::read_report;
+use crate::io::atomic::write_all_atomic;
+use crate::report::back_report::{indices, plus_minus, report_html};
+use crate::report::console::Output;
+use crate::workflows::back::analyse_clouds;
+use anyhow::Result;
+use deltaz_surface::{compare, Options};
+use nalgebra::Vector3;
+use std::path::PathBuf;
+
+/// What to analyse.
+#[derive(clap::Subcommand)]
+pub enum What {
+    /// A back from its scans: the clouds of one subject (several frames are registered and
+    /// combined, their sway reported) into analysis.json and a self-contained report.html in
+    /// OUT: the symmetry line, surface rotation along it, lateral deviation, trunk imbalance and
+    /// inclination, skin angles, the sagittal profile, the asymmetry map, and bent forward the
+    /// virtual scoliometer; every measure with its σ. Surface measurements, not a diagnosis.
+    Back {
+        /// A point cloud (PLY of `scan`, `reconstruct` or `device stream`, in the camera
+        /// system); repeat for several frames (a cloud with a `frame` property holds several).
+        #[arg(long = "cloud", required = true)]
+        clouds: Vec<PathBuf>,
+        /// The system the clouds were measured with (system.json of `calibrate system`): each
+        /// point's covariance, the calibration's common share included. Without it the clouds'
+        /// own σ (a `sigma_*` property) is used.
+        #[arg(long)]
+        system: Option<PathBuf>,
+        /// Output folder: analysis.json and report.html.
+        #[arg(long)]
+        out: PathBuf,
+        /// Standing (`standing`) or bent forward (`forward-bent`: the scoliometer reading).
+        #[arg(long, default_value = "standing")]
+        posture: PostureArg,
+        /// The vertical in the camera system (standing; default 0,1,0).
+        #[arg(long, value_parser = triple, allow_hyphen_values = true)]
+        vertical: Option<[f64; 3]>,
+        #[command(flatten)]
+        output: OutputArgs,
+    },
+    /// The follow-up of two analyses of one subject (analysis.json, before then after): the
+    /// change of each measure and profile with its σ, and which changes exceed the noise.
+    Compare {
+        /// The earlier analysis.json.
+        before: PathBuf,
+        /// The later analysis.json.
+        after: PathBuf,
+        #[command(flatten)]
+        output: OutputArgs,
+    },
+}
+
+/// `--posture` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PostureArg {
+    /// Upright, back to the camera.
+    Standing,
+    /// Bent forward (Adams).
+    ForwardBent,
+}
+
+/// A `--flag X,Y,Z` value.
+fn triple(text: &str) -> Result<[f64; 3], String> {
+    let parts: Result<Vec<f64>, _> = text.split(',').map(|s| s.trim().parse::<f64>()).collect();
+    match parts.as_deref() {
+        Ok([x, y, z]) if [x, y, z].iter().all(|v| v.is_finite()) => Ok([*x, *y, *z]),
+        _ => Err(format!(
+            "{text:?} is not three comma-separated numbers X,Y,Z"
+        )),
+    }
+}
+
+/// Runs `deltaz analyse`.
+pub fn exec(what: What) -> Result<()> {
+    match what {
+        What::Back {
+            clouds,
+            system,
+            out,
+            posture,
+            vertical,
+            output,
+        } => {
+            let output = Output::from(output);
+            let mut options = match posture {
+                PostureArg::Standing => Options::standing(),
+                PostureArg::ForwardBent => Options::forward_bent(),
+            };
+            options.vertical = vertical.map(Vector3::from);
+            let progress = output.progress(format!("analysing {} clouds", clouds.len()));
+            let report = analyse_clouds(&clouds, system.as_deref(), &options)?;
+            progress.finish_and_clear();
+            let json = serde_json::to_string_pretty(&report)? + "\n";
+            let html = report_html(&report)?;
+            std::fs::create_dir_all(&out)
+                .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", out.display()))?;
+            let (json_path, html_path) = (out.join("analysis.json"), out.join("report.html"));
+            write_all_atomic(&[
+                (json_path.as_path(), json.as_bytes()),
+                (html_path.as_path(), html.as_bytes()),
+            ])?;
+            let a = &report.analysis;
+            let mut text = format!(
+                "{} frames, {} points, {} levels (surface measurements, not a diagnosis):\n",
+                a.frames,
+                a.points,
+                a.levels.len()
+            );
+            for (name, value, sigma, unit) in indices(a) {
+                text += &format!("  {name}: {} {unit}\n", plus_minus(value, sigma));
+            }
+            text += &format!("-> {}, {}\n", json_path.display(), html_path.display());
+            output.result(&text, &serde_json::to_value(&report)?)
+        }
+        What::Compare {
+            before,
+            after,
+            output,
+        } => {
+            let (a, b) = (read_report(&before)?, read_report(&after)?);
+            if a.fingerprint.is_some() && b.fingerprint.is_some() && a.fingerprint != b.fingerprint
+            {
+                Output::from(output).status(format!(
+                    "note: measured with two calibrations ({} and {})",
+                    a.fingerprint.as_deref().unwrap_or_default(),
+                    b.fingerprint.as_deref().unwrap_or_default()
+                ));
+            }
+            let c = compare(&a.analysis, &b.analysis);
+            let mut text = format!(
+                "changes from {} to {} (beyond {:.2} σ: exceeds the measurement noise):\n",
+                before.display(),
+                after.display(),
+                c.threshold
+            );
+            for d in &c.indices {
+                text += &format!(
+                    "  {}: {:.2} → {:.2}, change {:+.2} ± {:.2}{}\n",
+                    d.name,
+                    d.before,
+                    d.after,
+                    d.change,
+                    d.sigma,
+                    if d.exceeds_noise {
+                        "  exceeds the noise"
+                    } else {
+                        ""
+                    }
+                );
+            }
+            let beyond = c
+                .levels
+                .iter()
+                .filter(|l| l.rotation_deg.exceeds_noise)
+                .count();
+            text += &format!(
+                "  surface rotation: {beyond} of {} levels changed beyond the noise\n",
+                c.levels.len()
+            );
+            Output::from(output).result(&text, &serde_json::to_value(&c)?)
+        }
+    }
+}

@@ -1,0 +1,257 @@
+//! Clouds → the back analysis (`deltaz analyse back`, the station's captures): each cloud's
+//! points (one frame per cloud, or per `frame` property) with their covariance, then
+//! [`deltaz_surface::analyse`] over all frames of the subject.
+//!
+//! A point's covariance comes from the calibration when `system.json` (of `calibrate system`,
+//! with its covariance) is given: the point is projected back to its dot's pixel, and
+//! [`SystemModel::reconstruct_shares`] splits its covariance into the share of its own (image
+//! noise, with the wire's centroid quantisation for device clouds, and its ray's own error) and
+//! the calibration's error common to every point ([`CommonShare::Core`]). Without a system, a
+//! cloud's own `sigma_*` properties give each point's covariance (no common share); a cloud with
+//! neither cannot be analysed honestly and is refused.
+
+use crate::io::analysis_file::{BackReport, ANALYSIS_FORMAT};
+use crate::io::ply::{read_cloud, Cloud};
+use crate::io::system_file::{SystemFile, SystemFrame, SystemRig};
+use crate::simulate::pattern::ID_STRIDE;
+use anyhow::{bail, Context, Result};
+use deltaz_calib::projector_calibration::DotObservation;
+use deltaz_calib::system_adjustment::{Frame as ModelFrame, SystemModel};
+use deltaz_shared::rig::Method;
+use deltaz_surface::{analyse, CommonShare, Frame, Options, ScanPoint};
+use nalgebra::{DMatrix, Matrix3};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The calibration a cloud's covariance comes from.
+pub struct Calibration {
+    file: SystemFile,
+    rig: SystemRig,
+    model: SystemModel,
+    split: deltaz_calib::system_adjustment::CoreSplit,
+}
+
+impl Calibration {
+    /// `system.json`, which must be in the camera system with the covariance of `calibrate
+    /// system` (or of `calibrate projector`'s joint model).
+    pub fn load(path: &Path) -> Result<Self> {
+        let (file, rig) = SystemFile::load(path)?;
+        if file.content.frame != SystemFrame::Camera {
+            bail!(
+                "{}: the system is in {}: the back analysis needs the camera system",
+                path.display(),
+                file.content.frame
+            );
+        }
+        let model = file
+            .content
+            .model()
+            .with_context(|| path.display().to_string())?
+            .with_context(|| {
+                format!(
+                    "{}: no covariance (a `calibrate projector --model paper` system): the points' \
+                     σ needs `calibrate system`",
+                    path.display()
+                )
+            })?;
+        let split = model
+            .core_split()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(Self {
+            file,
+            rig,
+            model,
+            split,
+        })
+    }
+
+    /// The fingerprint (16 hex digits).
+    pub fn fingerprint(&self) -> &str {
+        &self.file.fingerprint
+    }
+}
+
+/// A ray's node (column, row) in the projector's lattice (ids are row · [`ID_STRIDE`] + col).
+fn lattice_node(id: u16) -> [i32; 2] {
+    [i32::from(id % ID_STRIDE), i32::from(id / ID_STRIDE)]
+}
+
+/// The frames of the clouds at `paths`, each point with its covariance.
+pub fn frames(paths: &[PathBuf], calibration: Option<&Calibration>) -> Result<Vec<Frame>> {
+    let mut frames = Vec::new();
+    let mut fingerprint: Option<(String, &Path)> = None;
+    for path in paths {
+        let cloud = read_cloud(path)?;
+        check_cloud(path, &cloud)?;
+        if let Some(f) = &cloud.fingerprint {
+            match &fingerprint {
+                Some((first, at)) if first != f => bail!(
+                    "{}: measured with calibration {f}, but {} with {first}: frames of one \
+                     analysis need one calibration",
+                    path.display(),
+                    at.display()
+                ),
+                _ => fingerprint = Some((f.clone(), path)),
+            }
+        }
+        if let (Some(c), Some(f)) = (calibration, &cloud.fingerprint) {
+            if c.fingerprint() != f {
+                bail!(
+                    "{}: measured with calibration {f}, not the system's {}",
+                    path.display(),
+                    c.fingerprint()
+                );
+            }
+        }
+        // One frame per `frame` value (per cloud without it), in the order they appear.
+        let mut split: BTreeMap<u32, Vec<_>> = BTreeMap::new();
+        for v in &cloud.vertices {
+            split.entry(v.frame.unwrap_or(0)).or_default().push(*v);
+        }
+        for vertices in split.into_values() {
+            let frame = match calibration {
+                Some(c) => with_calibration(path, &cloud, &vertices, c)?,
+                None => with_own_sigma(path, &vertices)?,
+            };
+            frames.push(frame);
+        }
+    }
+    Ok(frames)
+}
+
+/// A cloud must be in the camera system and label its points by ray.
+fn check_cloud(path: &Path, cloud: &Cloud) -> Result<()> {
+    let camera = SystemFrame::Camera.to_string();
+    match cloud.frame.as_deref() {
+        Some(frame) if frame == camera => {}
+        Some(frame) => bail!(
+            "{}: its points are in {frame}: the back analysis needs {camera} (x right, y up, z \
+             toward the camera)",
+            path.display()
+        ),
+        None => bail!(
+            "{}: the cloud does not say its frame (a deltaz cloud's header does): the back \
+             analysis needs {camera}",
+            path.display()
+        ),
+    }
+    if cloud.vertices.iter().any(|v| v.ray.is_none()) {
+        bail!(
+            "{}: the points carry no `ray_id`: the surface is meshed over the projector's lattice",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+fn with_own_sigma(path: &Path, vertices: &[crate::io::ply::Vertex]) -> Result<Frame> {
+    let points = vertices
+        .iter()
+        .map(|v| {
+            let sigma = v.sigma.with_context(|| {
+                format!(
+                    "{}: the points carry no σ: give --system system.json (of `calibrate \
+                     system`) for their covariance",
+                    path.display()
+                )
+            })?;
+            Ok(ScanPoint {
+                position: v.point,
+                covariance: Matrix3::from_diagonal(&sigma.component_mul(&sigma)),
+                ray: lattice_node(v.ray.unwrap_or_default()),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Frame::new(points))
+}
+
+fn with_calibration(
+    path: &Path,
+    cloud: &Cloud,
+    vertices: &[crate::io::ply::Vertex],
+    c: &Calibration,
+) -> Result<Frame> {
+    let grid = c.rig.grid();
+    // Device clouds: each centroid was quantised to a step q on the wire (variance q²/12).
+    let s2 = c.model.sigma_dots_px.powi(2);
+    let quantised = cloud
+        .centroid_step_px
+        .map_or(1.0, |q| (s2 + q * q / 12.0) / s2);
+    let k = c.model.core_covariance.nrows();
+    let mut sensitivity = DMatrix::zeros(3 * vertices.len(), k);
+    let mut points = Vec::with_capacity(vertices.len());
+    for (i, v) in vertices.iter().enumerate() {
+        let id = v.ray.unwrap_or_default();
+        let at = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: ray {id}: {e}", path.display());
+        let (col, row) = c
+            .rig
+            .pixel_of_centred(&(v.point - c.rig.camera_centre()))
+            .map_err(|e| at(&e))?;
+        let dot = DotObservation { id, col, row };
+        let shares = c
+            .model
+            .reconstruct_shares(
+                &c.split,
+                grid,
+                &dot,
+                Method::ClosestApproach,
+                ModelFrame::Camera,
+            )
+            .map_err(|e| at(&e))?;
+        sensitivity
+            .view_mut((3 * i, 0), (3, k))
+            .copy_from(&shares.common);
+        points.push(ScanPoint {
+            position: v.point,
+            covariance: shares.image * quantised + shares.ray,
+            ray: lattice_node(id),
+        });
+    }
+    let fingerprint = u64::from_str_radix(c.fingerprint(), 16).ok();
+    Ok(Frame {
+        points,
+        calibration: fingerprint,
+        common: CommonShare::Core {
+            covariance: c.model.core_covariance.clone(),
+            sensitivity,
+        },
+    })
+}
+
+/// `deltaz analyse back`: the clouds at `paths` (with `system` for their covariance) analysed
+/// with `options`.
+pub fn analyse_clouds(
+    paths: &[PathBuf],
+    system: Option<&Path>,
+    options: &Options,
+) -> Result<BackReport> {
+    if paths.is_empty() {
+        bail!("give at least one --cloud");
+    }
+    let calibration = system.map(Calibration::load).transpose()?;
+    let frames = frames(paths, calibration.as_ref())?;
+    let analysis = analyse(&frames, options).map_err(|e| {
+        let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+        anyhow::anyhow!("{}: {e}", names.join(", "))
+    })?;
+    let covariance = match &calibration {
+        Some(c) => format!(
+            "the calibration's covariance (system {}): image noise, each ray's own error and \
+             the share common to all points",
+            c.fingerprint()
+        ),
+        None => "the clouds' own σ per axis (no share common to all points: give --system for it)"
+            .to_owned(),
+    };
+    let fingerprint = calibration
+        .as_ref()
+        .map(|c| c.fingerprint().to_owned())
+        .or_else(|| read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint));
+    Ok(BackReport {
+        format: ANALYSIS_FORMAT.to_owned(),
+        clouds: paths.to_vec(),
+        fingerprint,
+        covariance,
+        analysis,
+    })
+}

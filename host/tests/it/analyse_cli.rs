@@ -1,0 +1,235 @@
+//! `deltaz analyse back|compare` through the binary: clouds of the back model (a lattice of
+//! dots 20 mm apart, σ 0.4 mm, written as deltaz clouds with their σ) into analysis.json and
+//! report.html, the follow-up of two analyses, and the clouds it refuses.
+
+use deltaz_calib::reconstruct::ReconstructedPoint;
+use deltaz_host::io::ply::{encode_with, CloudInfo, Encoding};
+use deltaz_host::simulate::back::{BackModel, Deformity, Lattice, Pose};
+use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn deltaz(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("run deltaz")
+}
+
+const SIGMA: f64 = 0.4;
+
+/// A cloud of `model` as a deltaz PLY (camera system, each point's σ, ray ids by lattice node).
+fn write_cloud(path: &Path, model: &BackModel, frame: &str, seed: u64) {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, SIGMA).unwrap();
+    let points: Vec<ReconstructedPoint> = model
+        .sample(&Lattice::beside_camera(20.0))
+        .iter()
+        .map(|d| {
+            let [i, j] = d.ray;
+            let e = Vector3::from_fn(|_, _| noise.sample(&mut rng));
+            ReconstructedPoint {
+                id: u16::try_from((j + 40) * 100 + i + 40).unwrap(),
+                point: d.hit.point + e,
+                miss: 0.0,
+                sigma: Some(Vector3::repeat(SIGMA)),
+            }
+        })
+        .collect();
+    let info = CloudInfo {
+        frame: frame.to_owned(),
+        fingerprint: Some("00000000000000ab".into()),
+        ..CloudInfo::default()
+    };
+    std::fs::write(
+        path,
+        encode_with(&points, Encoding::BinaryLittleEndian, &info),
+    )
+    .unwrap();
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn analyse_back_writes_its_report_and_compares() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BackModel::standing(Deformity::thoracic());
+    let swayed = model.with_pose(Pose {
+        rotation: Vector3::new(0.0, 0.01, 0.0),
+        translation: Vector3::new(3.0, 0.0, 2.0),
+    });
+    write_cloud(&d.join("f0.ply"), &model, "the camera system", 1);
+    write_cloud(&d.join("f1.ply"), &swayed, "the camera system", 2);
+    let analysed = json(&deltaz(
+        d,
+        &[
+            "analyse", "back", "--cloud", "f0.ply", "--cloud", "f1.ply", "--out", "a", "--json",
+        ],
+    ));
+    // The fields the issue names, each with its σ twin, the levels with the symmetry line.
+    for key in [
+        "rotation_max_deg",
+        "rotation_rms_deg",
+        "lateral_deviation_max_mm",
+        "lateral_deviation_rms_mm",
+        "trunk_imbalance_mm",
+    ] {
+        let (v, s) = (&analysed[key], &analysed[format!("{key}_sigma")]);
+        assert!(
+            v.is_f64() && s.as_f64().is_some_and(|s| s > 0.0),
+            "{key}: {v} ± {s}"
+        );
+    }
+    let levels = analysed["levels"].as_array().unwrap();
+    assert!(levels.len() > 15, "{} levels", levels.len());
+    let axes = deltaz_host::simulate::back::Axes::camera();
+    let mut worst = 0.0_f64;
+    for level in levels {
+        let y = level["y"].as_f64().unwrap();
+        for key in [
+            "symmetry_x",
+            "symmetry_x_sigma",
+            "rotation_deg",
+            "rotation_sigma_deg",
+        ] {
+            assert!(level[key].is_f64(), "{key} at {y}");
+        }
+        // The first frame's truth, with the σ the analysis states (6σ: a gross check; the
+        // honesty of σ is the back tests' business).
+        let (x, _) = model.symmetry_point(&axes, y).unwrap();
+        let error = level["symmetry_x"].as_f64().unwrap() - x;
+        let sigma = level["symmetry_x_sigma"].as_f64().unwrap();
+        worst = worst.max(error.abs() / sigma);
+    }
+    assert!(worst < 6.0, "symmetry line off by {worst:.1} σ");
+    assert_eq!(analysed["frames"], 2);
+    assert_eq!(analysed["sway"].as_array().unwrap().len(), 1);
+    assert_eq!(analysed["fingerprint"], "00000000000000ab");
+    let html = std::fs::read_to_string(d.join("a/report.html")).unwrap();
+    assert!(html.contains("not a diagnosis") && html.contains("00000000000000ab"));
+    assert_eq!(html.matches("<svg").count(), 4, "four inline plots");
+    assert!(!html.contains("src=\"http") && !html.contains("<script"));
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("a/analysis.json")).unwrap()).unwrap();
+    assert_eq!(file, analysed);
+
+    // The same back again: no change exceeds the noise but by chance (5 % per value).
+    write_cloud(&d.join("g0.ply"), &model, "the camera system", 3);
+    json(&deltaz(
+        d,
+        &[
+            "analyse", "back", "--cloud", "g0.ply", "--out", "b", "--json",
+        ],
+    ));
+    let c = json(&deltaz(
+        d,
+        &[
+            "analyse",
+            "compare",
+            "a/analysis.json",
+            "b/analysis.json",
+            "--json",
+        ],
+    ));
+    let indices = c["indices"].as_array().unwrap();
+    let flagged = indices
+        .iter()
+        .filter(|i| i["exceeds_noise"] == true)
+        .count();
+    assert!(
+        !indices.is_empty() && flagged <= 2,
+        "{flagged} of {}",
+        indices.len()
+    );
+    // A back with another deformity: its rotation changed beyond the noise.
+    write_cloud(
+        &d.join("h0.ply"),
+        &BackModel::standing(Deformity::severe()),
+        "the camera system",
+        4,
+    );
+    json(&deltaz(
+        d,
+        &[
+            "analyse", "back", "--cloud", "h0.ply", "--out", "h", "--json",
+        ],
+    ));
+    let c = json(&deltaz(
+        d,
+        &[
+            "analyse",
+            "compare",
+            "a/analysis.json",
+            "h/analysis.json",
+            "--json",
+        ],
+    ));
+    let rotation = c["indices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|i| i["name"] == "rotation_max_deg")
+        .unwrap();
+    assert_eq!(rotation["exceeds_noise"], true, "{rotation}");
+}
+
+#[test]
+fn analyse_back_refuses_what_it_cannot_measure() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BackModel::standing(Deformity::straight());
+    write_cloud(
+        &d.join("plate.ply"),
+        &model,
+        "the plate frame of image p1",
+        1,
+    );
+    write_cloud(&d.join("ok.ply"), &model, "the camera system", 1);
+    // A cloud without σ, and one of another calibration.
+    let text = std::fs::read(d.join("ok.ply")).unwrap();
+    let other =
+        String::from_utf8_lossy(&text[..400]).replace("00000000000000ab", "00000000000000cd");
+    let mut other = other.into_bytes();
+    other.extend_from_slice(&text[400..]);
+    std::fs::write(d.join("other.ply"), other).unwrap();
+    std::fs::write(
+        d.join("flat.ply"),
+        "ply\nformat ascii 1.0\ncomment frame: the camera system\nelement vertex 2\n\
+         property double x\nproperty double y\nproperty double z\nproperty ushort ray_id\n\
+         end_header\n0 0 -1500 1\n20 0 -1500 2\n",
+    )
+    .unwrap();
+    let cases: [(&[&str], &str); 4] = [
+        (&["plate.ply"], "needs the camera system"),
+        (
+            &["ok.ply", "other.ply"],
+            "frames of one analysis need one calibration",
+        ),
+        (&["flat.ply"], "no σ"),
+        (&["missing.ply"], "missing.ply"),
+    ];
+    for (clouds, expect) in cases {
+        let mut args = vec!["analyse", "back", "--out", "x"];
+        for c in clouds {
+            args.extend(["--cloud", c]);
+        }
+        let out = deltaz(d, &args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(expect),
+            "{clouds:?}: {err}"
+        );
+        assert!(!d.join("x").exists(), "{clouds:?}: nothing written");
+    }
+}
