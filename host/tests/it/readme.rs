@@ -32,12 +32,13 @@ fn words(line: &str, optional: bool) -> Vec<String> {
     kept.split_whitespace().skip(1).map(str::to_owned).collect()
 }
 
-/// A placeholder: IMAGE..., MM, A.csv, or alternatives.
+/// A placeholder: IMAGE..., MM, A.csv, A/analysis.json, or alternatives.
 fn placeholder(word: &str) -> bool {
-    let stem = word.split('.').next().unwrap_or(word);
-    word.contains("...")
-        || word == "|"
-        || (!stem.is_empty() && stem.chars().all(|c| c.is_ascii_uppercase()))
+    let upper = |part: &str| {
+        let stem = part.split('.').next().unwrap_or(part);
+        !stem.is_empty() && stem.chars().all(|c| c.is_ascii_uppercase())
+    };
+    word.contains("...") || word == "|" || word.split('/').any(upper)
 }
 
 #[test]
