@@ -29,6 +29,7 @@ mod objects;
 mod projector_cli;
 mod readme;
 mod real_images;
+mod reconstruct_scale;
 mod resection_survey;
 mod residuals_cli;
 mod scan;
