@@ -1,6 +1,7 @@
 //! The host crate's integration tests, one binary: each module is one former test file.
 mod accuracy;
 mod analyse_cli;
+mod atomic_outputs;
 mod back_accuracy;
 mod back_real;
 mod back_real_data;
