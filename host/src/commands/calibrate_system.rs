@@ -103,7 +103,7 @@ pub fn exec(args: Args) -> Result<()> {
             .model
             .rays
             .iter()
-            .map(|r| (r.id, r.miss_rms, r.miss_max))
+            .map(|r| (r.id, (r.planes > 1).then_some((r.miss_rms, r.miss_max))))
             .collect();
         let views: Vec<_> = system
             .plates

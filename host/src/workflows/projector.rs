@@ -145,7 +145,7 @@ impl ProjectorSystem {
     /// rays' miss distances and every plate reconstructed with `rig`.
     pub fn plots(&self, rig: &SystemRig) -> Result<Vec<Plot>> {
         let rays: Vec<_> = (self.content.projector.rays.iter())
-            .map(|r| (r.id, r.miss_rms, r.miss_max))
+            .map(|r| (r.id, (r.planes > 1).then_some((r.miss_rms, r.miss_max))))
             .collect();
         let poses: Vec<_> = (self.views.iter())
             .map(|(image, exterior, _)| (image.clone(), *exterior))

@@ -27,6 +27,7 @@ mod measure;
 mod measure_cli;
 mod noncentral;
 mod objects;
+mod plots;
 mod projector_cli;
 mod readme;
 mod real_images;
