@@ -5,9 +5,10 @@ use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::read_observations;
 use crate::io::system_file::SystemFile;
-use crate::report::calibration_plots::{system_plots, write_with_plots, PlateView};
+use crate::report::calibration_plots::{
+    control_residuals, system_plots, write_with_plots, PlateView,
+};
 use crate::report::console::Output;
-use crate::report::residuals::residuals;
 use crate::workflows::camera::Targets;
 use crate::workflows::system::calibrate_system;
 use anyhow::Result;
@@ -97,8 +98,19 @@ pub fn exec(args: Args) -> Result<()> {
     let file = SystemFile::new(system.content.clone())?;
     let json = file.to_json()?;
     let make = || {
-        let residuals = residuals(&system.bundle, &field);
+        // The plate targets' residuals in the whole-system adjustment (its inner orientation
+        // and plate poses), not the field's in the bundle adjustment that only started it.
         let adjustment = &system.adjustment;
+        let poses: Vec<_> = (system.plates.iter().zip(&adjustment.poses))
+            .map(|(p, exterior)| (p.image.clone(), *exterior))
+            .collect();
+        let residuals = control_residuals(
+            &grid,
+            &adjustment.model.inner,
+            &poses,
+            &observations,
+            &control,
+        );
         let rays: Vec<_> = adjustment
             .model
             .rays

@@ -2,7 +2,7 @@
 //! projected dots of each resected image.
 
 use crate::io::control::ControlPoint;
-use crate::io::observations::{image_labels, Observation, PointKind};
+use crate::io::observations::{image_labels, off_sensor, Observation, PointKind};
 use crate::io::system_file::LeftOut;
 use crate::io::FileError;
 use anyhow::{bail, Context, Result};
@@ -62,8 +62,9 @@ pub struct Resected {
 
 /// Resects every image of an observation file on the control file, the control weighted by its
 /// σ against the image noise (estimated: the median σ0 of a first pass with exact control).
-/// Dots are skipped; a target that is not in the control file is an error naming the
-/// observation's line; an image that cannot be resected is left out with the reason.
+/// Dots are skipped; an observation (target or dot) off the camera's sensor, or a target that is
+/// not in the control file, is an error naming the observation's line, as in `reconstruct`; an
+/// image that cannot be resected is left out with the reason.
 pub fn resect_all(
     obs_path: &Path,
     grid: &PixelGrid<f64>,
@@ -71,6 +72,12 @@ pub fn resect_all(
     observations: &[Observation],
     control: &[ControlPoint],
 ) -> anyhow::Result<Resected> {
+    let sensor = (grid.width, grid.height);
+    if let Some(e) =
+        (observations.iter()).find_map(|o| off_sensor(obs_path, o.line, (o.col, o.row), sensor))
+    {
+        return Err(e.into());
+    }
     let known: HashMap<&str, &ControlPoint> =
         control.iter().map(|c| (c.point.as_str(), c)).collect();
     let mut images = Vec::new();
