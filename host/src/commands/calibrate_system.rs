@@ -10,6 +10,7 @@ use crate::report::calibration_plots::{
 };
 use crate::report::console::Output;
 use crate::workflows::camera::Targets;
+use crate::workflows::plates::check_on_sensor;
 use crate::workflows::system::calibrate_system;
 use anyhow::Result;
 use deltaz_calib::bundle::CalibrationOptions;
@@ -65,6 +66,8 @@ pub fn exec(args: Args) -> Result<()> {
     };
     let control = read_control(&args.control)?;
     let observations = read_observations(&args.obs)?;
+    check_on_sensor(&args.camera_obs, &grid, &field)?;
+    check_on_sensor(&args.obs, &grid, &observations)?;
     let progress = output.progress(format!(
         "calibrating the system from {} and {}",
         args.camera_obs.display(),

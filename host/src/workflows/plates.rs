@@ -60,11 +60,29 @@ pub struct Resected {
     pub left_out: Vec<LeftOut>,
 }
 
+/// Checks that every observation of the file `obs_path` (target or dot) lies on the camera's
+/// sensor: one off it is an error naming its line, as `reconstruct` gives it (the observations
+/// of another camera, or of resized images). For the files a user gives; simulated
+/// observations may run past the sensor's edge.
+pub fn check_on_sensor(
+    obs_path: &Path,
+    grid: &PixelGrid<f64>,
+    observations: &[Observation],
+) -> Result<()> {
+    let sensor = (grid.width, grid.height);
+    let off = observations
+        .iter()
+        .find_map(|o| off_sensor(obs_path, o.line, (o.col, o.row), sensor));
+    match off {
+        Some(e) => Err(e.into()),
+        None => Ok(()),
+    }
+}
+
 /// Resects every image of an observation file on the control file, the control weighted by its
 /// σ against the image noise (estimated: the median σ0 of a first pass with exact control).
-/// Dots are skipped; an observation (target or dot) off the camera's sensor, or a target that is
-/// not in the control file, is an error naming the observation's line, as in `reconstruct`; an
-/// image that cannot be resected is left out with the reason.
+/// Dots are skipped; a target that is not in the control file is an error naming the
+/// observation's line; an image that cannot be resected is left out with the reason.
 pub fn resect_all(
     obs_path: &Path,
     grid: &PixelGrid<f64>,
@@ -72,12 +90,6 @@ pub fn resect_all(
     observations: &[Observation],
     control: &[ControlPoint],
 ) -> anyhow::Result<Resected> {
-    let sensor = (grid.width, grid.height);
-    if let Some(e) =
-        (observations.iter()).find_map(|o| off_sensor(obs_path, o.line, (o.col, o.row), sensor))
-    {
-        return Err(e.into());
-    }
     let known: HashMap<&str, &ControlPoint> =
         control.iter().map(|c| (c.point.as_str(), c)).collect();
     let mut images = Vec::new();

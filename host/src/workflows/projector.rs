@@ -6,7 +6,7 @@
 //! system, as `calibrate system` gives it); or (`paper`) the paper's steps 5-7 with camera and
 //! poses taken as exact, the system in the plate frame of the 1st plate image.
 
-use super::plates::{plate_images, plate_observations, resect_all};
+use super::plates::{check_on_sensor, plate_images, plate_observations, resect_all};
 use crate::io::camera_file::read_camera;
 use crate::io::control::{read_control, ControlPoint};
 use crate::io::observations::{read_observations, Observation};
@@ -64,6 +64,7 @@ pub fn calibrate_projector(
         .collect();
     check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
+    check_on_sensor(obs, &grid, &observations)?;
     let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
     let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", obs.display());
     let mut notes = Vec::new();
