@@ -473,13 +473,9 @@ pub fn ray_misses(rays: &[RayMiss]) -> Result<String> {
             .map_err(plot_error)?;
         chart
             .draw_series(undetermined.iter().map(|&id| {
-                Rectangle::new(
-                    [
-                        (f64::from(id) - 0.4, -0.8 * band),
-                        (f64::from(id) + 0.4, -0.2 * band),
-                    ],
-                    UNDETERMINED.filled(),
-                )
+                // 5 px wide whatever the number of rays, in the middle of the band.
+                EmptyElement::at((f64::from(id), -0.5 * band))
+                    + Rectangle::new([(-2, -4), (2, 4)], UNDETERMINED.filled())
             }))
             .map_err(plot_error)?;
         let mut entries = vec![
