@@ -33,9 +33,8 @@ pub struct ReconstructedPoint {
     pub sigma: Option<Vector3<f64>>,
 }
 
-/// Reconstructs every observation; `image_sigma_px` (pixels) turns on the σ propagation, to
-/// which `calibration` (the rays' line covariances) adds the calibration's share.
-/// An unknown ray or a degenerate intersection names the observation.
+/// Reconstructs every observation with [`reconstruct_dot`]; an unknown ray or a degenerate
+/// intersection names the observation (its 1-based index, ray and pixel).
 pub fn reconstruct(
     rig: &SystemRig,
     dots: &[DotObservation],
@@ -46,36 +45,49 @@ pub fn reconstruct(
     dots.iter()
         .enumerate()
         .map(|(k, dot)| {
-            let hit = rig
-                .reconstruct(dot.id, dot.col, dot.row, method)
-                .map_err(|e| anyhow::anyhow!("{e}"))
-                .with_context(|| {
-                    format!(
-                        "observation {} (ray {} at {}, {})",
-                        k + 1,
-                        dot.id,
-                        dot.col,
-                        dot.row
-                    )
-                })?;
-            let sigma = match image_sigma_px {
-                Some(s) => {
-                    let mut cov = covariance(rig, dot, method, s)?;
-                    if let Some(line) = calibration.and_then(|c| c.get(&dot.id)) {
-                        cov += calibration_covariance(rig, dot, method, hit.point, line)?;
-                    }
-                    Some(cov.diagonal().map(f64::sqrt))
-                }
-                None => None,
-            };
-            Ok(ReconstructedPoint {
-                id: dot.id,
-                point: hit.point,
-                miss: hit.miss,
-                sigma,
+            reconstruct_dot(rig, dot, method, image_sigma_px, calibration).with_context(|| {
+                format!(
+                    "observation {} (ray {} at {}, {})",
+                    k + 1,
+                    dot.id,
+                    dot.col,
+                    dot.row
+                )
             })
         })
         .collect()
+}
+
+/// One dot: the intersection of eqs (6)-(9) and its miss distance; `image_sigma_px` (pixels)
+/// turns on the σ propagation, to which `calibration` (the rays' line covariances) adds the
+/// calibration's share. Allocates nothing unless it fails, so a stream of dots costs the same
+/// per dot however many there are.
+pub fn reconstruct_dot(
+    rig: &SystemRig,
+    dot: &DotObservation,
+    method: Method,
+    image_sigma_px: Option<f64>,
+    calibration: Option<&RayCovariances>,
+) -> Result<ReconstructedPoint> {
+    let hit = rig
+        .reconstruct(dot.id, dot.col, dot.row, method)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let sigma = match image_sigma_px {
+        Some(s) => {
+            let mut cov = covariance(rig, dot, method, s)?;
+            if let Some(line) = calibration.and_then(|c| c.get(&dot.id)) {
+                cov += calibration_covariance(rig, dot, method, hit.point, line)?;
+            }
+            Some(cov.diagonal().map(f64::sqrt))
+        }
+        None => None,
+    };
+    Ok(ReconstructedPoint {
+        id: dot.id,
+        point: hit.point,
+        miss: hit.miss,
+        sigma,
+    })
 }
 
 /// ∂X/∂(col, row) of one dot by central differences (0.01 px steps).

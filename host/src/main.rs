@@ -26,7 +26,11 @@ fn default_sigpipe() {
 /// RUST_BACKTRACE says) and exits with 1, like a bad command line.
 fn main() -> ExitCode {
     #[cfg(unix)]
-    default_sigpipe();
+    {
+        default_sigpipe();
+        // Before any other thread starts: an interrupt removes the temporary files of outputs.
+        deltaz_host::io::atomic::remove_temporaries_on_signals();
+    }
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {

@@ -578,7 +578,7 @@ pub fn measure_loaded_file(
         let hint = match (found, other.detect.polarity) {
             (0, _) => String::new(),
             (n, detect::Polarity::Dark) => format!("; {n} dark targets found with --dark"),
-            (n, detect::Polarity::Bright) => format!("; {n} bright targets found without --dark"),
+            (n, detect::Polarity::Bright) => format!("; {n} bright targets found with --bright"),
         };
         bail!(
             "{}: no targets found ({} components rejected: {}){hint}",

@@ -3,6 +3,7 @@
 use crate::report::console::Output;
 use crate::workflows::observations::FolderArgs;
 use deltaz_calib::system_adjustment::Frame;
+use deltaz_measure::detect::Polarity;
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 
@@ -42,6 +43,45 @@ pub fn positive(text: &str) -> Result<f64, String> {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
         Ok(v) => Err(format!("{v} is not a positive finite number")),
         Err(_) => Err(format!("{text:?} is not a number")),
+    }
+}
+
+/// A `--pixel-size` value (mm): positive, finite and at most [`MAX_PIXEL_SIZE_MM`] (a pixel
+/// of 1 mm is already no camera's; 1 gives photo coordinates in pixels).
+pub fn pixel_size(text: &str) -> Result<f64, String> {
+    let v = positive(text)?;
+    if v > MAX_PIXEL_SIZE_MM {
+        return Err(format!(
+            "{} mm is not a pixel size (at most {MAX_PIXEL_SIZE_MM} mm)",
+            text.trim()
+        ));
+    }
+    Ok(v)
+}
+
+/// The largest `--pixel-size` accepted (mm).
+pub const MAX_PIXEL_SIZE_MM: f64 = 1.0;
+
+/// `--dark` / `--bright`: the targets' polarity, the same in every command that measures
+/// images. The default: dark with a circle-grid board (printed dark circles on white), bright
+/// otherwise (projected dots, the simulated targets).
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
+pub struct PolarityArgs {
+    /// Targets are darker than the background (the default with --board).
+    #[arg(long, conflicts_with = "bright")]
+    pub dark: bool,
+    /// Targets are brighter than the background (the default without --board).
+    #[arg(long)]
+    pub bright: bool,
+}
+
+impl PolarityArgs {
+    /// The polarity asked for, or the default for a board (`board`) or other targets.
+    pub fn polarity(self, board: bool) -> Polarity {
+        match (self.dark, self.bright, board) {
+            (true, _, _) | (false, false, true) => Polarity::Dark,
+            _ => Polarity::Bright,
+        }
     }
 }
 
@@ -114,6 +154,8 @@ pub struct ImageFolder {
     /// With --images: tolerance (px) of the layout match.
     #[arg(long, default_value_t = 8.0, value_parser = positive, allow_negative_numbers = true)]
     pub tolerance: f64,
+    #[command(flatten)]
+    pub polarity: PolarityArgs,
 }
 
 impl ImageFolder {
@@ -125,6 +167,7 @@ impl ImageFolder {
             control: control.to_path_buf(),
             distinct: self.distinct,
             tolerance_px: self.tolerance,
+            polarity: self.polarity.polarity(false),
         })
     }
 }

@@ -1,6 +1,6 @@
 //! `deltaz calibrate camera`.
 
-use super::args::{positive, ImageFolder, OutputArgs, PlotsArg};
+use super::args::{pixel_size, positive, ImageFolder, OutputArgs, PlotsArg};
 use crate::io::camera_file::{read_camera, CameraFile, INNER_NAMES};
 use crate::report::calibration_plots::report_plots;
 use crate::report::console::Output;
@@ -11,7 +11,6 @@ use crate::workflows::observations::{folder_observations, ObservationsGuard};
 use anyhow::Result;
 use deltaz_calib::bundle::CalibrationOptions;
 use deltaz_measure::board::Board;
-use deltaz_measure::detect::Polarity;
 use deltaz_measure::MeasureParams;
 use std::path::{Path, PathBuf};
 
@@ -23,23 +22,21 @@ pub struct Args {
     #[arg(long, required_unless_present = "board")]
     init: Option<PathBuf>,
     /// Calibrate from views of a flat circle-grid board in --images instead,
-    /// `circles:COLSxROWS[:SPACING_MM]` or `acircles:COLSxROWS[:SPACING_MM]` (dark circles;
-    /// see `--bright`): the start from the views' homographies, the board as weighted
+    /// `circles:COLSxROWS[:SPACING_MM]` or `acircles:COLSxROWS[:SPACING_MM]` (dark circles
+    /// unless `--bright`): the start from the views' homographies, the board as weighted
     /// control; the labelled circles and the board are written next to --out
     /// (*.obs.csv, *.control.csv).
     #[arg(long, requires = "images", conflicts_with_all = ["init", "obs", "control"])]
     board: Option<Board>,
     /// With --board: the pixel size (mm); without it photo coordinates are in units of 100
     /// pixels (f and σ in pixels are printed all the same).
-    #[arg(long, default_value_t = 0.01, requires = "board")]
+    #[arg(long, default_value_t = 0.01, requires = "board", value_parser = pixel_size,
+          allow_negative_numbers = true)]
     pixel_size: f64,
     /// With --board: σ of the board's circle positions (its flatness and spacing errors,
     /// in the spacing's unit).
     #[arg(long, default_value_t = 0.02, requires = "board")]
     board_sigma: f64,
-    /// With --board: the circles are brighter than the board.
-    #[arg(long, requires = "board")]
-    bright: bool,
     /// Keep every observation (no data snooping).
     #[arg(long)]
     no_snooping: bool,
@@ -96,9 +93,7 @@ pub fn exec(args: Args) -> Result<()> {
     let out = &args.out;
     if let (Some(board), Some(dir)) = (args.board, args.folder.images.as_deref()) {
         let mut params = MeasureParams::default();
-        if !args.bright {
-            params.detect.polarity = Polarity::Dark;
-        }
+        params.detect.polarity = args.folder.polarity.polarity(true);
         let progress = output.progress(format!("calibrating the camera from {}", dir.display()));
         let cal = calibrate_board(
             dir,

@@ -5,10 +5,12 @@ use crate::io::camera_file::read_camera;
 use crate::io::control::read_control;
 use crate::io::observations::read_observations;
 use crate::io::system_file::SystemFile;
-use crate::report::calibration_plots::{system_plots, write_with_plots, PlateView};
+use crate::report::calibration_plots::{
+    control_residuals, system_plots, write_with_plots, PlateView,
+};
 use crate::report::console::Output;
-use crate::report::residuals::residuals;
 use crate::workflows::camera::Targets;
+use crate::workflows::plates::check_on_sensor;
 use crate::workflows::system::calibrate_system;
 use anyhow::Result;
 use deltaz_calib::bundle::CalibrationOptions;
@@ -64,6 +66,8 @@ pub fn exec(args: Args) -> Result<()> {
     };
     let control = read_control(&args.control)?;
     let observations = read_observations(&args.obs)?;
+    check_on_sensor(&args.camera_obs, &grid, &field)?;
+    check_on_sensor(&args.obs, &grid, &observations)?;
     let progress = output.progress(format!(
         "calibrating the system from {} and {}",
         args.camera_obs.display(),
@@ -97,13 +101,24 @@ pub fn exec(args: Args) -> Result<()> {
     let file = SystemFile::new(system.content.clone())?;
     let json = file.to_json()?;
     let make = || {
-        let residuals = residuals(&system.bundle, &field);
+        // The plate targets' residuals in the whole-system adjustment (its inner orientation
+        // and plate poses), not the field's in the bundle adjustment that only started it.
         let adjustment = &system.adjustment;
+        let poses: Vec<_> = (system.plates.iter().zip(&adjustment.poses))
+            .map(|(p, exterior)| (p.image.clone(), *exterior))
+            .collect();
+        let residuals = control_residuals(
+            &grid,
+            &adjustment.model.inner,
+            &poses,
+            &observations,
+            &control,
+        );
         let rays: Vec<_> = adjustment
             .model
             .rays
             .iter()
-            .map(|r| (r.id, r.miss_rms, r.miss_max))
+            .map(|r| (r.id, (r.planes > 1).then_some((r.miss_rms, r.miss_max))))
             .collect();
         let views: Vec<_> = system
             .plates

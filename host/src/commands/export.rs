@@ -41,7 +41,10 @@ pub fn exec(what: What) -> Result<()> {
         (None, Some(system)) => (system, true),
         (None, None) => anyhow::bail!("give --camera FILE or --system FILE"),
     };
-    let cv = export_opencv(&input, is_system, &out)?;
+    let (cv, warning) = export_opencv(&input, is_system, &out)?;
+    if let Some(warning) = warning {
+        eprintln!("warning: {warning}");
+    }
     Output::from(output).result(
         &format!(
             "OpenCV camera: f {:.2} px, principal point ({:.2}, {:.2}) px, {} images, \

@@ -1,12 +1,11 @@
 //! `deltaz measure`.
 
-use super::args::positive;
+use super::args::{positive, PolarityArgs};
 use crate::io::observations::write_observations;
 use crate::io::system_file::SystemFile;
 use crate::workflows::observations::measure_images;
 use anyhow::Result;
 use deltaz_measure::board::Board;
-use deltaz_measure::detect::Polarity;
 use deltaz_measure::{CentreMethod, HostIdentifier, MeasureParams};
 use deltaz_shared::identify::DepthRange;
 use std::path::PathBuf;
@@ -20,9 +19,8 @@ pub struct Args {
     /// Observations CSV to write.
     #[arg(long)]
     out: PathBuf,
-    /// Targets are darker than the background.
-    #[arg(long)]
-    dark: bool,
+    #[command(flatten)]
+    polarity: PolarityArgs,
     /// Use the paper's gravity centre instead of the (more precise) template fit.
     #[arg(long)]
     gravity: bool,
@@ -55,9 +53,7 @@ pub struct Args {
 /// Runs `deltaz measure`.
 pub fn exec(args: Args) -> Result<()> {
     let mut params = MeasureParams::default();
-    if args.dark {
-        params.detect.polarity = Polarity::Dark;
-    }
+    params.detect.polarity = args.polarity.polarity(args.board.is_some());
     if args.gravity {
         params.method = CentreMethod::Gravity;
     }

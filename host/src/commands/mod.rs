@@ -6,6 +6,7 @@ mod analyse;
 mod args;
 mod bench;
 mod bench_measure;
+mod bench_reconstruct;
 mod calibrate;
 mod calibrate_camera;
 mod calibrate_projector;
@@ -49,6 +50,9 @@ pub enum Command {
     Measure(measure::Args),
     /// Timings of image measurement: 768 x 512 with 440 dots, 12 MP with 4,000 dots.
     BenchMeasure(bench_measure::Args),
+    /// Timings of `reconstruct`: the same dots (10^6) over 2,000 and over 20,000 images, beside
+    /// a numpy script (loadtxt and eqs 6-9) on the same file.
+    BenchReconstruct(bench_reconstruct::Args),
     /// Scan camera frames: measure each frame on the host, identify and reconstruct it through
     /// the device (--port, --qemu, in-process by default) or on the host (--host), pipelined
     /// across the cores; one PLY per frame in OUT (or one with --one-file), optionally a CSV of
@@ -92,6 +96,7 @@ impl Command {
             Command::Demo(args) => demo::exec(args),
             Command::Measure(args) => measure::exec(args),
             Command::BenchMeasure(args) => bench_measure::exec(args),
+            Command::BenchReconstruct(args) => bench_reconstruct::exec(args),
             Command::Scan(args) => scan::exec(args),
             Command::Calibrate { what } => calibrate::exec(what),
             Command::Device(args) => device::exec(args),

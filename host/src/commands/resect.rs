@@ -7,7 +7,7 @@ use crate::io::control::read_control;
 use crate::io::observations::read_observations;
 use crate::io::poses::PosesFile;
 use crate::report::console::Output;
-use crate::workflows::plates::resect_images;
+use crate::workflows::plates::{check_on_sensor, resect_images};
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -36,6 +36,7 @@ pub fn exec(args: Args) -> Result<()> {
     let cam = read_camera(&args.camera)?;
     let observations = read_observations(&args.obs)?;
     let control = read_control(&args.control)?;
+    check_on_sensor(&args.obs, &cam.grid(), &observations)?;
     let results = resect_images(
         &args.obs,
         &cam.grid(),

@@ -58,7 +58,7 @@ pub fn exec(args: Args) -> Result<()> {
         ScanOn::Host
     } else {
         ScanOn::Device {
-            link: args.device.link(Output::default()),
+            link: args.device.link(output),
             upload: args.upload,
         }
     };

@@ -366,13 +366,9 @@ impl CameraFile {
         self.inner.into()
     }
 
+    /// The checks of [`read_camera`] after the format (numbers finite, sizes positive and
+    /// within limits, the covariance consistent with σ).
     fn validate(&self, path: &Path) -> Result<()> {
-        if self.format != CAMERA_FORMAT {
-            return Err(FileError::whole(
-                path,
-                format!("`format` is {:?}, expected {CAMERA_FORMAT:?}", self.format),
-            ));
-        }
         let numbers = self
             .inner
             .to_array()
@@ -447,6 +443,22 @@ impl CameraFile {
 /// Reads and validates `camera.json` or `camera_init.json`.
 pub fn read_camera(path: &Path) -> Result<CameraFile> {
     let text = std::fs::read_to_string(path).map_err(|e| FileError::whole(path, e.to_string()))?;
+    // A file of another kind is named as such before its fields are looked for.
+    if let Some(tag) = super::format_tag(&text).filter(|t| t != CAMERA_FORMAT) {
+        let kind = match tag.split('/').next() {
+            Some("deltaz.system") => ": a system calibration (system.json), not a camera file",
+            Some("deltaz.poses") => ": resected poses (resect --out), not a camera file",
+            Some("deltaz.back") => ": a back analysis (analysis.json), not a camera file",
+            _ => "",
+        };
+        return Err(FileError::whole(
+            path,
+            format!(
+                "format {tag:?}{kind}; expected {CAMERA_FORMAT:?} (camera.json of `calibrate \
+                 camera`, or camera_init.json of `simulate`)"
+            ),
+        ));
+    }
     let file: CameraFile =
         serde_json::from_str(&text).map_err(|e| FileError::at(path, e.line(), e.to_string()))?;
     file.validate(path)?;
@@ -563,7 +575,10 @@ mod tests {
         std::fs::write(&path, ok).unwrap();
         assert_eq!(read_camera(&path).unwrap().inner().k1, 0.0);
         let bad = [
-            (ok.replace("deltaz.camera/1", "x/2"), "`format` is \"x/2\""),
+            (
+                ok.replace("deltaz.camera/1", "x/2"),
+                "format \"x/2\"; expected",
+            ),
             (
                 ok.replace("\"f\":46", "\"f\":-1"),
                 "`inner.f` must be positive",

@@ -6,7 +6,7 @@ use super::{csv_text, header_columns, number_field, optional_column, record_line
 use super::{FileError, Result};
 use nalgebra::Vector3;
 use std::borrow::Cow;
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 pub use deltaz_calib::input::ControlPoint;
@@ -16,16 +16,36 @@ pub use deltaz_calib::input::ControlPoint;
 pub const MAX_COORDINATE_MM: f64 = 1e7;
 
 /// Reads a control file, checking columns, finite numbers within ±[`MAX_COORDINATE_MM`],
-/// sigma ≥ 0 and unique labels.
+/// sigma ≥ 0 and unique labels. A points file with an `image` column (`reconstruct --csv`) over
+/// several images labels each point `frame:point`, the frame the index of its image in the
+/// order the images first appear, as a cloud's `frame` property numbers them
+/// ([`super::ply::read_points`]): the same ray in two images is two points.
 pub fn read_control(path: &Path) -> Result<Vec<ControlPoint>> {
     let (header, rows) = records(path)?;
     let [cp, cx, cy, cz] = header_columns(path, &header, ["point", "X", "Y", "Z"])?;
     let cs = optional_column(&header, "sigma");
+    let ci = optional_column(&header, "image");
+    let mut frames: HashMap<&str, usize> = HashMap::new();
+    if let Some(ci) = ci {
+        for record in &rows {
+            let image = text_field(path, record, ci, "image")?;
+            let next = frames.len();
+            frames.entry(image).or_insert(next);
+        }
+    }
+    let frame_of = |record: &csv::StringRecord| {
+        let image = record.get(ci?)?.trim();
+        frames.get(image).copied().filter(|_| frames.len() > 1)
+    };
     let mut seen = HashSet::new();
     let mut out = Vec::with_capacity(rows.len());
     for record in &rows {
         let line = record_line(record);
-        let point = text_field(path, record, cp, "point")?.to_owned();
+        let label = text_field(path, record, cp, "point")?;
+        let point = match frame_of(record) {
+            Some(frame) => format!("{frame}:{label}"),
+            None => label.to_owned(),
+        };
         let xyz = Vector3::new(
             number_field(path, record, cx, "X")?,
             number_field(path, record, cy, "Y")?,

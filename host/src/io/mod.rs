@@ -90,14 +90,14 @@ pub(crate) fn record_line(record: &csv::StringRecord) -> usize {
     record.position().map_or(0, |p| p.line() as usize)
 }
 
-/// A field of a record: present and non-empty.
+/// A field of a record, trimmed: present and non-empty.
 pub(crate) fn text_field<'r>(
     path: &Path,
     record: &'r csv::StringRecord,
     column: usize,
     name: &str,
 ) -> Result<&'r str> {
-    match record.get(column) {
+    match record.get(column).map(str::trim) {
         Some(v) if !v.is_empty() => Ok(v),
         _ => Err(FileError::at(
             path,
@@ -197,13 +197,15 @@ pub(crate) fn records(path: &Path) -> Result<(csv::StringRecord, Vec<csv::String
     Ok((header, rows))
 }
 
-/// A streaming CSV reader configured like [`records`] (headers on, whitespace trimmed, `#`
-/// comments) for files too large to hold: carriage returns before a line feed are dropped on
-/// the way in, so the csv crate's line numbers are right for CRLF files too.
+/// A streaming CSV reader configured like [`records`] (headers on, `#` comments) for files too
+/// large to hold: carriage returns before a line feed are dropped on the way in, so the csv
+/// crate's line numbers are right for CRLF files too. Only the header is trimmed here (the csv
+/// crate trims a record by copying it); [`text_field`] and [`number_field`] trim each field, so
+/// a record read into the same `StringRecord` again costs no allocation.
 pub(crate) fn csv_reader(path: &Path) -> Result<csv::Reader<LfOnly<std::fs::File>>> {
     let file = std::fs::File::open(path).map_err(|e| FileError::whole(path, e.to_string()))?;
     Ok(csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
+        .trim(csv::Trim::Headers)
         .flexible(true)
         .comment(Some(b'#'))
         .from_reader(LfOnly {

@@ -71,6 +71,26 @@ impl Observation {
     }
 }
 
+/// The error for an observation at (col, row) on `line` of `path` when it lies off a
+/// `width × height` px sensor (pixel centres 0..width − 1, 0..height − 1, ± half a pixel): an
+/// observation of another camera, or of a resized image.
+pub fn off_sensor(
+    path: &Path,
+    line: usize,
+    (col, row): (f64, f64),
+    (width, height): (u32, u32),
+) -> Option<FileError> {
+    let on = (-0.5..=f64::from(width) - 0.5).contains(&col)
+        && (-0.5..=f64::from(height) - 0.5).contains(&row);
+    (!on).then(|| {
+        FileError::at(
+            path,
+            line,
+            format!("({col}, {row}) is off the {width} × {height} sensor"),
+        )
+    })
+}
+
 /// Reads an observations file, checking: the columns `image,point,col,row` exist, numbers are
 /// finite, `kind` (if present) is `control` or `dot`, a dot's label is a ray id, and no
 /// (image, point) pair appears twice.

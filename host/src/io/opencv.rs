@@ -228,9 +228,17 @@ fn matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
 }
 
 /// The OpenCV camera of a `camera.json` (intrinsics, one extrinsic row per station in the file's
-/// order, the residual RMS).
-pub fn from_camera_file(path: &Path) -> Result<OpenCvCamera> {
+/// order, the residual RMS), and a warning when the file is no calibration (a camera_init.json:
+/// no adjustment gave it a σ0).
+pub fn from_camera_file(path: &Path) -> Result<(OpenCvCamera, Option<String>)> {
     let file = read_camera(path)?;
+    let warning = file.sigma0.is_none().then(|| {
+        format!(
+            "{}: not calibrated (no adjustment, no σ0: a camera_init.json?): its focal length \
+             and principal point are starting values, its distortion zero",
+            path.display()
+        )
+    });
     let mut camera = OpenCvCamera::new(&file.grid(), &file.inner());
     camera.extrinsics = file
         .stations
@@ -238,7 +246,7 @@ pub fn from_camera_file(path: &Path) -> Result<OpenCvCamera> {
         .map(|s| (s.image.clone(), opencv_pose(&s.pose.into())))
         .collect();
     camera.rms_px = file.rms_px;
-    Ok(camera)
+    Ok((camera, warning))
 }
 
 /// The OpenCV camera of a `system.json`: its camera and its pose in the rig frame (`rig`).
@@ -250,17 +258,22 @@ pub fn from_system_file(path: &Path) -> Result<OpenCvCamera> {
     Ok(camera)
 }
 
-/// `deltaz export opencv`: writes the YAML atomically; the camera for the report.
-pub fn export_opencv(input: &Path, system: bool, out: &Path) -> Result<OpenCvCamera> {
-    let camera = if system {
-        from_system_file(input)?
+/// `deltaz export opencv`: writes the YAML atomically; the camera for the report, and a
+/// warning about the input (see [`from_camera_file`]).
+pub fn export_opencv(
+    input: &Path,
+    system: bool,
+    out: &Path,
+) -> Result<(OpenCvCamera, Option<String>)> {
+    let (camera, warning) = if system {
+        (from_system_file(input)?, None)
     } else {
         from_camera_file(input)?
     };
     let name = input.file_name().unwrap_or_default().to_string_lossy();
     crate::io::atomic::write_atomic(out, camera.to_yaml(&name).as_bytes())
         .with_context(|| "export opencv")?;
-    Ok(camera)
+    Ok((camera, warning))
 }
 
 #[cfg(test)]

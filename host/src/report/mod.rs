@@ -5,5 +5,6 @@ pub mod back_report;
 pub mod calibration_plots;
 pub mod console;
 pub mod object_accuracy;
+pub mod plot_parts;
 pub mod plots;
 pub mod residuals;

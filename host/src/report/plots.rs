@@ -3,37 +3,23 @@
 //! distances, and accuracy maps of reconstructed plates and test objects. Every plot has axes
 //! with units, a title with its figures and a legend.
 
+use super::plot_parts::{
+    arrowhead, bar_tick, draw_legend, draw_title, tick, Sample, FAMILY, LEGEND_ROW,
+};
 use super::residuals::{per_image_rms, Residual};
 use anyhow::{anyhow, Result};
 use plotters::prelude::*;
 use std::ops::Range;
 
 /// Font of titles and labels.
-const FONT: (&str, u32) = ("sans-serif", 13);
+const FONT: (&str, u32) = (FAMILY, 13);
+
+/// Height (px) of a figure's title strip (two lines) and of its legend strip.
+const TITLE_STRIP: u32 = 40;
+const LEGEND_STRIP: u32 = LEGEND_ROW as u32;
 
 fn plot_error<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing a plot: {e:?}")
-}
-
-/// The legend sample of a line series: a 16 px stroke in `style`.
-fn line_legend(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
-    move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], style)
-}
-
-/// Draws a chart's legend (its series' labels) in a white box with a black border, labels in
-/// `font_size` px.
-fn draw_legend<'a, DB, CT>(chart: &mut ChartContext<'a, DB, CT>, font_size: u32) -> Result<()>
-where
-    DB: DrawingBackend + 'a,
-    CT: plotters::coord::CoordTranslate,
-{
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .label_font(("sans-serif", font_size))
-        .draw()
-        .map_err(plot_error)
 }
 
 /// A length in the plot for residuals: the largest residual is drawn as `fraction` of
@@ -48,20 +34,32 @@ fn arrow_scale(largest: f64, extent: f64, fraction: f64) -> f64 {
         .unwrap_or(decade)
 }
 
-/// The axis ranges of one image's panel: the sensor, every residual vector's tip at `scale`
-/// and a margin (8 % of the span) that holds the scale arrow, so that nothing leaves the panel.
+/// The residual length (px, 1, 0.5, 0.2, 0.1, ...) the scale bar shows: 1 px when it is drawn
+/// at most `room` screen px long, else the largest round fraction that is.
+fn scale_bar_px(screen_per_px: f64, room: f64) -> f64 {
+    (0..12)
+        .flat_map(|e| [1.0, 0.5, 0.2].map(|m| m * 10f64.powi(-e)))
+        .find(|length| length * screen_per_px <= room)
+        .unwrap_or(1e-12)
+}
+
+/// The axis ranges of the residual panels: the sensor, every active residual vector's tip at
+/// `scale` and a margin (8 % of the span), so that nothing leaves a panel; one range for every
+/// panel, so that one scale bar holds for all.
 fn panel_ranges<'a>(
-    own: impl Iterator<Item = &'a Residual>,
+    residuals: impl Iterator<Item = &'a Residual>,
     (w, h): (f64, f64),
     scale: f64,
 ) -> (Range<f64>, Range<f64>) {
     let (mut x, mut y) = ((0.0_f64, w), (0.0_f64, h));
-    for r in own {
-        for t in [0.0, scale] {
-            let (c, row) = (r.observed[0] + t * r.v[0], r.observed[1] + t * r.v[1]);
-            x = (x.0.min(c), x.1.max(c));
-            y = (y.0.min(row), y.1.max(row));
-        }
+    for r in residuals {
+        let t = if r.rejected { 0.0 } else { scale };
+        let (c, row) = (r.observed[0] + t * r.v[0], r.observed[1] + t * r.v[1]);
+        x = (x.0.min(r.observed[0]).min(c), x.1.max(r.observed[0]).max(c));
+        y = (
+            y.0.min(r.observed[1]).min(row),
+            y.1.max(r.observed[1]).max(row),
+        );
     }
     let pad = |(lo, hi): (f64, f64)| {
         let m = 0.08 * (hi - lo);
@@ -70,8 +68,16 @@ fn panel_ranges<'a>(
     (pad(x), pad(y))
 }
 
+/// Colour of residual vectors and of rejected observations' markers.
+const RESIDUAL: RGBColor = RED;
+const REJECTED: RGBColor = RGBColor(200, 0, 200);
+
 /// Residual vectors of every image on its sensor (one panel per image), magnified by one
-/// common scale shown by the legend's 1 px arrow; rejected observations in grey.
+/// common scale, each with an arrowhead at its tip; observations rejected as gross errors are
+/// marked where they were observed (a ring with a cross, no vector: theirs would be off the
+/// scale). One legend for the figure, above the panels: the vector, the target, the rejected
+/// marker and a scale bar of 1 px of residual (a round fraction of it at high magnification,
+/// so that it always fits).
 pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Result<String> {
     let images = per_image_rms(residuals);
     let cols = (images.len() as f64).sqrt().ceil().max(1.0) as usize;
@@ -82,28 +88,42 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
         .filter(|r| !r.rejected)
         .map(Residual::norm)
         .fold(0.0, f64::max);
+    let rejected = residuals.iter().filter(|r| r.rejected).count();
     let scale = arrow_scale(largest, w.min(h), 0.12);
+    let (x_range, y_range) = panel_ranges(residuals.iter(), (w, h), scale);
     let mut svg = String::new();
     {
         let panel_w = 380;
         let panel_h = (f64::from(panel_w) * h / w) as u32 + 70;
+        let figure_w = panel_w * cols as u32;
         let root = SVGBackend::with_string(
             &mut svg,
-            (panel_w * cols as u32, panel_h * rows as u32 + 30),
+            (
+                figure_w,
+                panel_h * rows as u32 + TITLE_STRIP + 2 * LEGEND_STRIP,
+            ),
         )
         .into_drawing_area();
         root.fill(&WHITE).map_err(plot_error)?;
-        let (top, body) = root.split_vertically(30);
-        top.titled(
+        let (top, rest) = root.split_vertically(TITLE_STRIP);
+        let (legend, body) = rest.split_vertically(2 * LEGEND_STRIP);
+        draw_title(
+            &top,
             &format!(
-                "Image residuals (observed − computed), magnified {scale}×: largest {largest:.2} px"
+                "Image residuals (observed − computed), magnified {}×: largest {largest:.2} px{}",
+                tick(&scale),
+                if rejected > 0 {
+                    format!(", {rejected} rejected")
+                } else {
+                    String::new()
+                }
             ),
-            FONT,
-        )
-        .map_err(plot_error)?;
+            f64::from(FONT.1),
+        )?;
+        // Screen px per px of the sensor, the same in every panel (one range for all).
+        let mut screen_per_px = None;
         for (panel, (image, rms)) in body.split_evenly((rows, cols)).iter().zip(&images) {
             let own = residuals.iter().filter(|r| r.image == *image);
-            let (x_range, y_range) = panel_ranges(own.clone(), (w, h), scale);
             let mut chart = ChartBuilder::on(panel)
                 .caption(format!("{image}: RMS {rms:.3} px"), FONT)
                 .margin(6)
@@ -118,9 +138,13 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                 .y_desc("row (px)")
                 .x_label_formatter(&|v| format!("{v:.0}"))
                 .y_label_formatter(&|v| format!("{v:.0}"))
-                .label_style(("sans-serif", 10))
+                .label_style((FAMILY, 10))
                 .draw()
                 .map_err(plot_error)?;
+            let (px, py) = chart.plotting_area().get_pixel_range();
+            let kx = f64::from(px.end - px.start) / (x_range.end - x_range.start);
+            let ky = f64::from(py.end - py.start) / (y_range.end - y_range.start);
+            screen_per_px.get_or_insert(kx);
             // The sensor's outline.
             chart
                 .draw_series(std::iter::once(Rectangle::new(
@@ -128,44 +152,62 @@ pub fn residual_vectors(residuals: &[Residual], width: u32, height: u32) -> Resu
                     RGBColor(200, 200, 200).stroke_width(1),
                 )))
                 .map_err(plot_error)?;
+            let active = own.clone().filter(|r| !r.rejected);
             chart
-                .draw_series(own.clone().map(|r| {
+                .draw_series(active.clone().map(|r| {
                     let [c, row] = r.observed;
-                    let colour = if r.rejected {
-                        &RGBColor(160, 160, 160)
-                    } else {
-                        &RED
-                    };
                     PathElement::new(
                         vec![(c, row), (c + scale * r.v[0], row + scale * r.v[1])],
-                        colour.stroke_width(1),
+                        RESIDUAL.stroke_width(1),
                     )
                 }))
-                .map_err(plot_error)?
-                .label(format!("residual × {scale}"))
-                .legend(line_legend(RED.into()));
+                .map_err(plot_error)?;
+            chart
+                .draw_series(active.map(|r| {
+                    let [c, row] = r.observed;
+                    let (dx, dy) = (kx * scale * r.v[0], ky * scale * r.v[1]);
+                    let length = (0.5 * dx.hypot(dy)).clamp(1.0, 5.0);
+                    EmptyElement::at((c + scale * r.v[0], row + scale * r.v[1]))
+                        + PathElement::new(
+                            arrowhead((0, 0), (dx, dy), length),
+                            RESIDUAL.stroke_width(1),
+                        )
+                }))
+                .map_err(plot_error)?;
+            chart
+                .draw_series(own.clone().filter(|r| r.rejected).map(|r| {
+                    EmptyElement::at((r.observed[0], r.observed[1]))
+                        + Circle::new((0, 0), 4, REJECTED.stroke_width(1))
+                        + Cross::new((0, 0), 3, REJECTED)
+                }))
+                .map_err(plot_error)?;
             chart
                 .draw_series(
                     own.map(|r| Circle::new((r.observed[0], r.observed[1]), 1, BLACK.filled())),
                 )
-                .map_err(plot_error)?
-                .label("target")
-                .legend(|(x, y)| Circle::new((x + 8, y), 2, BLACK.filled()));
-            // The scale arrow: 1 px of residual, in the bottom left margin.
-            let (x0, y0) = (
-                x_range.start + 0.02 * (x_range.end - x_range.start),
-                y_range.end - 0.03 * (y_range.end - y_range.start),
-            );
-            chart
-                .draw_series(std::iter::once(PathElement::new(
-                    vec![(x0, y0), (x0 + scale, y0)],
-                    BLUE.stroke_width(2),
-                )))
-                .map_err(plot_error)?
-                .label("1 px")
-                .legend(line_legend(BLUE.stroke_width(2)));
-            draw_legend(&mut chart, 10)?;
+                .map_err(plot_error)?;
         }
+        let screen_per_px = scale * screen_per_px.unwrap_or(1.0);
+        let bar = scale_bar_px(screen_per_px, 120.0);
+        let mut entries = vec![
+            (
+                Sample::Arrow(RESIDUAL),
+                format!("residual × {}", tick(&scale)),
+            ),
+            (Sample::Dot(BLACK), "target".to_owned()),
+        ];
+        if rejected > 0 {
+            entries.push((
+                Sample::Marked(REJECTED),
+                "rejected as a gross error (not in the adjustment; in the residuals CSV)"
+                    .to_owned(),
+            ));
+        }
+        entries.push((
+            Sample::Line(BLUE, 2, (bar * screen_per_px).round().max(1.0) as i32),
+            format!("{} px of residual", tick(&bar)),
+        ));
+        draw_legend(&legend, &entries, 10.0)?;
         root.present().map_err(plot_error)?;
     }
     Ok(svg)
@@ -177,9 +219,13 @@ fn colour_limit(errors: impl Iterator<Item = f64>) -> f64 {
     errors.map(f64::abs).fold(0.0, f64::max).max(1e-9)
 }
 
+/// The colour of a zero error on the accuracy maps: a light grey, so that a marker of no error
+/// stands out from the white page.
+const ZERO: RGBColor = RGBColor(215, 215, 215);
+
 /// An accuracy map: each point at its (X, Y) in mm, coloured by its error component `what`
 /// (mm; e.g. "Z error") against truth or a reference, with a colour bar from −largest |error|
-/// (blue) through 0 (white) to +largest (red). For plates and test objects alike.
+/// (blue) through 0 (light grey, [`ZERO`]) to +largest (red). For plates and test objects alike.
 pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Result<String> {
     let span = |values: &mut dyn Iterator<Item = f64>| {
         let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
@@ -194,7 +240,7 @@ pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Resu
         span(&mut points.iter().map(|p| p.0)),
         span(&mut points.iter().map(|p| p.1)),
     );
-    // The map's plotting area (px): 620 − 2 × 10 margin − 56 labels by 560 − 30 title − 20 − 40.
+    // The map's plotting area (px): 620 − 2 × 10 margin − 56 labels by 570 − 40 title − 20 − 40.
     const AREA: (f64, f64) = (544.0, 470.0);
     let (dx, dy) = (x_range.end - x_range.start, y_range.end - y_range.start);
     let per_px = (dx / AREA.0).max(dy / AREA.1);
@@ -205,22 +251,22 @@ pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Resu
     x_range = widen(x_range, per_px * AREA.0);
     y_range = widen(y_range, per_px * AREA.1);
     let limit = colour_limit(points.iter().map(|p| p.2));
-    let colours = DerivedColorMap::new(&[BLUE, WHITE, RED]);
+    let colours = DerivedColorMap::new(&[BLUE, ZERO, RED]);
     let colour = |e: f64| colours.get_color_normalized(e, -limit, limit);
     let rms = (points.iter().map(|p| p.2 * p.2).sum::<f64>() / points.len().max(1) as f64).sqrt();
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, (720, 560)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (720, 570)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_error)?;
-        let (top, body) = root.split_vertically(30);
-        top.titled(
+        let (top, body) = root.split_vertically(TITLE_STRIP);
+        draw_title(
+            &top,
             &format!(
                 "{title}: {} points, {what} RMS {rms:.3} mm, largest |{what}| {limit:.3} mm",
                 points.len()
             ),
-            FONT,
-        )
-        .map_err(plot_error)?;
+            f64::from(FONT.1),
+        )?;
         let (map, bar) = body.split_horizontally(620);
         let mut chart = ChartBuilder::on(&map)
             .margin(10)
@@ -232,13 +278,15 @@ pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Resu
             .configure_mesh()
             .x_desc("X (mm)")
             .y_desc("Y (mm)")
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .draw()
             .map_err(plot_error)?;
         chart
             .draw_series(points.iter().map(|&(x, y, e)| {
                 EmptyElement::at((x, y))
                     + Circle::new((0, 0), 4, colour(e).filled())
-                    + Circle::new((0, 0), 4, RGBColor(90, 90, 90).stroke_width(1))
+                    + Circle::new((0, 0), 4, RGBColor(60, 60, 60).stroke_width(1))
             }))
             .map_err(plot_error)?;
         let mut bar_chart = ChartBuilder::on(&bar)
@@ -253,8 +301,8 @@ pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Resu
         bar_chart
             .configure_secondary_axes()
             .y_desc(format!("{what} (mm)"))
-            .y_label_formatter(&|v| format!("{:.3}", if v.abs() < 1e-6 * limit { 0.0 } else { *v }))
-            .label_style(("sans-serif", 10))
+            .y_label_formatter(&bar_tick(limit))
+            .label_style((FAMILY, 10))
             .draw()
             .map_err(plot_error)?;
         const STEPS: usize = 64;
@@ -305,13 +353,16 @@ pub fn residual_histogram(residuals: &[Residual]) -> Result<(String, Vec<usize>)
         * 1.1;
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, (640, 420)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (640, 420 + LEGEND_STRIP)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_error)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(
-                format!("Residuals: {n} coordinates, RMS {rms:.3} px (outer bins hold the tails)"),
-                FONT,
-            )
+        let (title, rest) = root.split_vertically(TITLE_STRIP);
+        let (legend, body) = rest.split_vertically(LEGEND_STRIP);
+        draw_title(
+            &title,
+            &format!("Residuals: {n} coordinates, RMS {rms:.3} px (outer bins hold the tails)"),
+            f64::from(FONT.1),
+        )?;
+        let mut chart = ChartBuilder::on(&body)
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(50)
@@ -321,6 +372,8 @@ pub fn residual_histogram(residuals: &[Residual]) -> Result<(String, Vec<usize>)
             .configure_mesh()
             .x_desc("residual / RMS (residual in px divided by the RMS)")
             .y_desc("count")
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .draw()
             .map_err(plot_error)?;
         chart
@@ -328,9 +381,7 @@ pub fn residual_histogram(residuals: &[Residual]) -> Result<(String, Vec<usize>)
                 let x = (i as f64 - f64::from(HALF_BINS)) * BIN;
                 Rectangle::new([(x, 0.0), (x + BIN, *c as f64)], RED.mix(0.5).filled())
             }))
-            .map_err(plot_error)?
-            .label("observed")
-            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], RED.mix(0.5).filled()));
+            .map_err(plot_error)?;
         chart
             .draw_series(LineSeries::new(
                 (0..=160).map(|k| {
@@ -339,64 +390,112 @@ pub fn residual_histogram(residuals: &[Residual]) -> Result<(String, Vec<usize>)
                 }),
                 BLUE.stroke_width(2),
             ))
-            .map_err(plot_error)?
-            .label("expected: normal, σ = RMS")
-            .legend(line_legend(BLUE.stroke_width(2)));
-        draw_legend(&mut chart, 12)?;
+            .map_err(plot_error)?;
+        draw_legend(
+            &legend,
+            &[
+                (
+                    Sample::Square(RGBColor(255, 128, 128)),
+                    "observed".to_owned(),
+                ),
+                (
+                    Sample::Line(BLUE, 2, 16),
+                    "expected: normal, σ = RMS".to_owned(),
+                ),
+            ],
+            12.0,
+        )?;
         root.present().map_err(plot_error)?;
     }
     Ok((svg, counts))
 }
 
-/// The projector rays' miss distances: each ray's RMS and largest distance from its plane points
-/// (mm), by ray id.
-pub fn ray_misses(rays: &[(u16, f64, f64)]) -> Result<String> {
-    let top = rays.iter().map(|r| r.2).fold(0.0, f64::max).max(1e-6) * 1.1;
+/// A ray's miss distances from its plate points (mm): RMS and largest, or `None` for a ray seen
+/// on one plate only, whose line runs through its points by construction (not determined).
+pub type RayMiss = (u16, Option<(f64, f64)>);
+
+/// The projector rays' miss distances: each ray's RMS and largest distance from its plate points
+/// (mm), by ray id; rays seen on one plate only are marked in a band below 0, "not determined",
+/// never as a miss of 0.
+pub fn ray_misses(rays: &[RayMiss]) -> Result<String> {
+    let determined = || rays.iter().filter_map(|&(id, m)| m.map(|m| (id, m)));
+    let top = determined().map(|(_, m)| m.1).fold(0.0, f64::max).max(1e-6) * 1.1;
     let last = rays.iter().map(|r| f64::from(r.0)).fold(1.0, f64::max);
+    let undetermined: Vec<u16> = (rays.iter())
+        .filter(|r| r.1.is_none())
+        .map(|r| r.0)
+        .collect();
+    // The band of the undetermined rays, below the axis's 0.
+    let band = if undetermined.is_empty() {
+        0.0
+    } else {
+        0.08 * top
+    };
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, (720, 420)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (720, 420 + LEGEND_STRIP)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_error)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(
-                format!(
-                    "Projector rays: miss distance from their plane points ({} rays)",
-                    rays.len()
-                ),
-                FONT,
-            )
+        let (title, rest) = root.split_vertically(TITLE_STRIP);
+        let (legend, body) = rest.split_vertically(LEGEND_STRIP);
+        draw_title(
+            &title,
+            &format!(
+                "Projector rays: miss distance from their plane points ({} rays{})",
+                rays.len(),
+                match undetermined.len() {
+                    0 => String::new(),
+                    n => format!(", {n} seen on one plate, their miss not determined"),
+                }
+            ),
+            f64::from(FONT.1),
+        )?;
+        let mut chart = ChartBuilder::on(&body)
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(56)
-            .build_cartesian_2d(0.0..last * 1.02, 0.0..top)
+            .build_cartesian_2d(0.0..last * 1.02, -band..top)
             .map_err(plot_error)?;
         chart
             .configure_mesh()
             .x_desc("ray id (row × 100 + column)")
             .y_desc("miss distance (mm)")
+            .x_label_formatter(&tick)
+            .y_label_formatter(&|v| if *v < 0.0 { String::new() } else { tick(v) })
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(
-                rays.iter()
-                    .map(|r| Cross::new((f64::from(r.0), r.2), 2, BLUE)),
-            )
-            .map_err(plot_error)?
-            .label("largest")
-            .legend(|(x, y)| Cross::new((x + 8, y), 3, BLUE));
+            .draw_series(determined().map(|(id, m)| Cross::new((f64::from(id), m.1), 2, BLUE)))
+            .map_err(plot_error)?;
         chart
             .draw_series(
-                rays.iter()
-                    .map(|r| Circle::new((f64::from(r.0), r.1), 2, RED.filled())),
+                determined().map(|(id, m)| Circle::new((f64::from(id), m.0), 2, RED.filled())),
             )
-            .map_err(plot_error)?
-            .label("RMS")
-            .legend(|(x, y)| Circle::new((x + 8, y), 3, RED.filled()));
-        draw_legend(&mut chart, 12)?;
+            .map_err(plot_error)?;
+        chart
+            .draw_series(undetermined.iter().map(|&id| {
+                // 5 px wide whatever the number of rays, in the middle of the band.
+                EmptyElement::at((f64::from(id), -0.5 * band))
+                    + Rectangle::new([(-2, -4), (2, 4)], UNDETERMINED.filled())
+            }))
+            .map_err(plot_error)?;
+        let mut entries = vec![
+            (Sample::Cross(BLUE), "largest".to_owned()),
+            (Sample::Dot(RED), "RMS".to_owned()),
+        ];
+        if !undetermined.is_empty() {
+            entries.push((
+                Sample::Square(UNDETERMINED),
+                "seen on one plate: miss not determined (band below 0)".to_owned(),
+            ));
+        }
+        draw_legend(&legend, &entries, 12.0)?;
         root.present().map_err(plot_error)?;
     }
     Ok(svg)
 }
+
+/// The colour of the rays whose miss distance is not determined.
+const UNDETERMINED: RGBColor = RGBColor(150, 150, 150);
 
 /// Writes `files` and, with `dir`, the plots into it (created if missing), all or nothing: when
 /// any write fails, no file is created or changed and a directory created here is removed.
@@ -517,10 +616,11 @@ mod tests {
         // The largest tip would leave the old fixed range −5 %..105 % of the sensor.
         assert!(w + scale * 3.0 > 1.05 * w);
         let svg = residual_vectors(&r, 768, 512).unwrap();
-        // One red vector per residual plus one legend sample per panel.
+        // One red vector and one arrowhead (a 3-point polyline) per residual, plus the one
+        // legend's arrow (shaft and head) for the whole figure.
         assert_eq!(
             svg.matches(r##"stroke="#FF0000""##).count(),
-            r.len() + 2,
+            2 * r.len() + 2,
             "{svg}"
         );
     }
@@ -539,11 +639,13 @@ mod tests {
         let svg = accuracy_map("test plate", "Z error", &points).unwrap();
         // Each point: a filled disc and its outline.
         assert_eq!(svg.matches(r#"r="4""#).count(), 2 * points.len(), "{svg}");
-        // i = 29 (+0.19) is the bar's top colour, red; i = 10 (0) white; i = 0 (−0.10) bluish.
+        // i = 29 (+0.19) is the bar's top colour, red; i = 10 (0) light grey; i = 0 (−0.10)
+        // bluish.
         assert!(svg.contains(r##"r="4" opacity="1" fill="#FF0000""##));
-        assert!(svg.contains(r##"r="4" opacity="1" fill="#FFFFFF""##));
-        // −0.10 of ±0.19: 0.10 / 0.19 of the way from white to blue, 255 · 0.09 / 0.19 ≈ 121.
-        assert!(svg.contains(r##"r="4" opacity="1" fill="#7979FF""##));
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#D7D7D7""##));
+        // −0.10 of ±0.19: 0.10 / 0.19 of the way from grey to blue: red and green
+        // 215 · 0.09 / 0.19 ≈ 102, blue 215 + 40 · 0.10 / 0.19 ≈ 236.
+        assert!(svg.contains(r##"r="4" opacity="1" fill="#6666EC""##));
         assert!(
             svg.contains("X (mm)") && svg.contains("Z error (mm)") && svg.contains("30 points")
         );

@@ -8,6 +8,7 @@
 //! the plate of image k lies at Z ≈ 100 (k − 1)).
 
 pub mod back;
+pub mod dot_stream;
 pub mod images;
 pub mod objects;
 pub mod pattern;

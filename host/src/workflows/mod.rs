@@ -2,11 +2,12 @@
 //! libraries: field → camera ([`camera`], [`board`]), plates → projector ([`plates`],
 //! [`projector`]), both → system ([`system`]), images → observations ([`observations`]), dots →
 //! points ([`reconstruct`], [`scan`], [`stream`] through a [`device`]), and the experiments on
-//! simulated rigs ([`accuracy`], [`bench`], [`demo`]).
+//! simulated rigs ([`accuracy`], [`bench`], [`bench_reconstruct`], [`demo`]).
 
 pub mod accuracy;
 pub mod back;
 pub mod bench;
+pub mod bench_reconstruct;
 pub mod board;
 pub mod camera;
 pub mod demo;

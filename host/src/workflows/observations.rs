@@ -318,6 +318,8 @@ pub struct FolderArgs {
     pub distinct: Option<Vec<String>>,
     /// Matching tolerance (px).
     pub tolerance_px: f64,
+    /// The targets' polarity.
+    pub polarity: deltaz_measure::detect::Polarity,
 }
 
 /// The accepted targets of a measured image as layout blobs (fitted centre, pixel area).
@@ -359,10 +361,11 @@ pub fn folder_observations(
     let paths = image_files(&args.dir, &args.prefix)?;
     // An image of another size (resized, cropped) is refused as such, before its targets are
     // matched against a layout projected for the sensor.
-    let params = MeasureParams {
+    let mut params = MeasureParams {
         sensor: Some((grid.width, grid.height)),
         ..MeasureParams::default()
     };
+    params.detect.polarity = args.polarity;
     let found = identify_images(
         &paths,
         &params,

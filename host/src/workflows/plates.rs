@@ -2,7 +2,7 @@
 //! projected dots of each resected image.
 
 use crate::io::control::ControlPoint;
-use crate::io::observations::{image_labels, Observation, PointKind};
+use crate::io::observations::{image_labels, off_sensor, Observation, PointKind};
 use crate::io::system_file::LeftOut;
 use crate::io::FileError;
 use anyhow::{bail, Context, Result};
@@ -58,6 +58,25 @@ pub struct Resected {
     pub results: Vec<(String, ResectionResult)>,
     /// Images too poorly controlled to resect, with the reason.
     pub left_out: Vec<LeftOut>,
+}
+
+/// Checks that every observation of the file `obs_path` (target or dot) lies on the camera's
+/// sensor: one off it is an error naming its line, as `reconstruct` gives it (the observations
+/// of another camera, or of resized images). For the files a user gives; simulated
+/// observations may run past the sensor's edge.
+pub fn check_on_sensor(
+    obs_path: &Path,
+    grid: &PixelGrid<f64>,
+    observations: &[Observation],
+) -> Result<()> {
+    let sensor = (grid.width, grid.height);
+    let off = observations
+        .iter()
+        .find_map(|o| off_sensor(obs_path, o.line, (o.col, o.row), sensor));
+    match off {
+        Some(e) => Err(e.into()),
+        None => Ok(()),
+    }
 }
 
 /// Resects every image of an observation file on the control file, the control weighted by its

@@ -6,7 +6,7 @@
 //! system, as `calibrate system` gives it); or (`paper`) the paper's steps 5-7 with camera and
 //! poses taken as exact, the system in the plate frame of the 1st plate image.
 
-use super::plates::{plate_images, plate_observations, resect_all};
+use super::plates::{check_on_sensor, plate_images, plate_observations, resect_all};
 use crate::io::camera_file::read_camera;
 use crate::io::control::{read_control, ControlPoint};
 use crate::io::observations::{read_observations, Observation};
@@ -64,6 +64,7 @@ pub fn calibrate_projector(
         .collect();
     check_raised_control(&labelled).map_err(|e| anyhow::anyhow!("{}: {e}", control.display()))?;
     let observations = read_observations(obs)?;
+    check_on_sensor(obs, &grid, &observations)?;
     let resected = resect_all(obs, &grid, &inner, &observations, &control_points)?;
     let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: {e:#}", obs.display());
     let mut notes = Vec::new();
@@ -145,7 +146,7 @@ impl ProjectorSystem {
     /// rays' miss distances and every plate reconstructed with `rig`.
     pub fn plots(&self, rig: &SystemRig) -> Result<Vec<Plot>> {
         let rays: Vec<_> = (self.content.projector.rays.iter())
-            .map(|r| (r.id, r.miss_rms, r.miss_max))
+            .map(|r| (r.id, (r.planes > 1).then_some((r.miss_rms, r.miss_max))))
             .collect();
         let poses: Vec<_> = (self.views.iter())
             .map(|(image, exterior, _)| (image.clone(), *exterior))

@@ -1,6 +1,9 @@
 //! `deltaz reconstruct` as a stream: identified dots are read from the CSV in batches, each batch
-//! reconstructed on all cores ([`deltaz_calib::reconstruct::reconstruct`], one dot at a time) and
-//! appended to the outputs, so memory does not grow with the number of points.
+//! reconstructed on all cores ([`deltaz_calib::reconstruct::reconstruct_dot`]) while the next is
+//! read, and appended to the outputs, so memory does not grow with the number of points, and the
+//! work per dot does not grow with the number of images: a row holds its image's frame index,
+//! not its name, and an image is looked up (hashed) only where the rows' image changes. Without
+//! the whole-system covariance nothing is allocated per dot.
 //!
 //! The PLY header needs the vertex count, so the vertices go to a temporary file first and the
 //! cloud is assembled (header + vertices) into another temporary file that is renamed over the
@@ -17,16 +20,18 @@
 //! point's image (in the order the images first appear), also for a single image.
 
 use crate::io::atomic::Pending;
+use crate::io::observations::off_sensor;
 use crate::io::ply::{header, push_point, CloudInfo, Encoding, Layout};
 use crate::io::system_file::{SystemFile, SystemFrame};
 use crate::io::{csv_reader, header_columns, number_field, optional_column, record_line};
 use crate::io::{points_comment, text_field, FileError};
 use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::DotObservation;
-use deltaz_calib::reconstruct::{reconstruct, ReconstructedPoint};
+use deltaz_calib::reconstruct::{reconstruct_dot, ReconstructedPoint};
 use deltaz_calib::system_adjustment::Frame;
 use deltaz_shared::rig::Method;
 use rayon::prelude::*;
+use std::collections::{HashMap, HashSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -48,26 +53,40 @@ fn csv_line(text: &mut String, image: &str, p: &ReconstructedPoint) {
     text.push('\n');
 }
 
-/// One row to reconstruct: its image (and that image's index), dot and line.
+/// One row to reconstruct: its frame (the index of its image, in the order the images first
+/// appear), dot and line. No image name: a row costs no allocation.
+#[derive(Debug, Clone, Copy)]
 struct Row {
-    image: String,
     frame: u32,
     dot: DotObservation,
     line: usize,
 }
 
-/// The CSV's rows in batches of [`BATCH`], checked.
+/// Rows read together, and the names of the images first met among them (their frames follow
+/// the ones before, in order).
+#[derive(Debug, Default)]
+struct Batch {
+    rows: Vec<Row>,
+    new_images: Vec<Box<str>>,
+}
+
+/// The CSV's rows in batches of [`BATCH`], checked. The work per row does not depend on the
+/// number of images: one record buffer is reused, an image's frame is looked up (hashed) only
+/// where the image changes, and the duplicate check holds only the current image's rays.
 struct Rows {
     path: PathBuf,
-    records: csv::StringRecordsIntoIter<crate::io::LfOnly<std::fs::File>>,
+    reader: csv::Reader<crate::io::LfOnly<std::fs::File>>,
+    record: csv::StringRecord,
     columns: [usize; 4],
     /// The header's number of fields: a row with more is refused.
     width: usize,
     kind: Option<usize>,
+    /// The current run's image and its frame (`None` before the first row).
     image: String,
-    /// The images met so far, in order: a row's frame index.
-    images: Vec<String>,
-    seen: std::collections::HashSet<u16>,
+    current: Option<u32>,
+    /// Every image met so far: its frame.
+    frames: HashMap<Box<str>, u32>,
+    seen: HashSet<u16>,
     /// The calibration's sensor (width, height): dots off it are errors.
     sensor: (u32, u32),
 }
@@ -84,29 +103,35 @@ impl Rows {
             columns: header_columns(path, &head, ["image", "point", "col", "row"])?,
             kind: optional_column(&head, "kind"),
             width: head.len(),
-            records: reader.into_records(),
+            reader,
+            record: csv::StringRecord::new(),
             image: String::new(),
-            images: Vec::new(),
-            seen: Default::default(),
+            current: None,
+            frames: HashMap::new(),
+            seen: HashSet::new(),
             sensor,
         })
     }
 
-    /// The next batch (empty at the end of the file).
-    fn batch(&mut self) -> Result<Vec<Row>> {
+    /// The next batch (no rows at the end of the file).
+    fn batch(&mut self) -> Result<Batch> {
         let path = &self.path;
         let [ci, cp, cc, cr] = self.columns;
-        let mut out = Vec::new();
-        while out.len() < BATCH {
-            let Some(record) = self.records.next() else {
-                break;
-            };
-            let record = record.map_err(|e| {
+        let mut out = Batch {
+            rows: Vec::with_capacity(BATCH),
+            new_images: Vec::new(),
+        };
+        while out.rows.len() < BATCH {
+            let more = self.reader.read_record(&mut self.record).map_err(|e| {
                 let line = e.position().map_or(0, |p| p.line() as usize);
                 FileError::at(path, line, e.to_string())
             })?;
-            let line = record_line(&record);
-            if record.iter().skip(self.width).any(|f| !f.is_empty()) {
+            if !more {
+                break;
+            }
+            let record = &self.record;
+            let line = record_line(record);
+            if record.iter().skip(self.width).any(|f| !f.trim().is_empty()) {
                 bail!(FileError::at(
                     path,
                     line,
@@ -118,7 +143,7 @@ impl Rows {
                 ));
             }
             if let Some(k) = self.kind {
-                match record.get(k) {
+                match record.get(k).map(str::trim) {
                     Some("dot") => {}
                     None | Some("") | Some("control") => continue,
                     Some(other) => bail!(FileError::at(
@@ -128,8 +153,8 @@ impl Rows {
                     )),
                 }
             }
-            let image = text_field(path, &record, ci, "image")?;
-            let point = text_field(path, &record, cp, "point")?;
+            let image = text_field(path, record, ci, "image")?;
+            let point = text_field(path, record, cp, "point")?;
             let Ok(id) = point.parse::<u16>() else {
                 bail!(FileError::at(
                     path,
@@ -139,26 +164,31 @@ impl Rows {
             };
             let dot = DotObservation {
                 id,
-                col: number_field(path, &record, cc, "col")?,
-                row: number_field(path, &record, cr, "row")?,
+                col: number_field(path, record, cc, "col")?,
+                row: number_field(path, record, cr, "row")?,
             };
-            let (w, h) = self.sensor;
-            if !(-0.5..=w as f64 - 0.5).contains(&dot.col)
-                || !(-0.5..=h as f64 - 0.5).contains(&dot.row)
-            {
-                bail!(FileError::at(
-                    path,
-                    line,
-                    format!("({}, {}) is off the {w} × {h} sensor", dot.col, dot.row)
-                ));
+            if let Some(e) = off_sensor(path, line, (dot.col, dot.row), self.sensor) {
+                bail!(e);
             }
-            if image != self.image {
-                self.image = image.to_owned();
-                self.seen.clear();
-                if !self.images.iter().any(|i| i == image) {
-                    self.images.push(image.to_owned());
+            let frame = match self.current {
+                Some(frame) if self.image == image => frame,
+                _ => {
+                    let frame = match self.frames.get(image) {
+                        Some(&frame) => frame,
+                        None => {
+                            let frame = self.frames.len() as u32;
+                            self.frames.insert(image.into(), frame);
+                            out.new_images.push(image.into());
+                            frame
+                        }
+                    };
+                    self.image.clear();
+                    self.image.push_str(image);
+                    self.current = Some(frame);
+                    self.seen.clear();
+                    frame
                 }
-            }
+            };
             if !self.seen.insert(id) {
                 bail!(FileError::at(
                     path,
@@ -166,16 +196,7 @@ impl Rows {
                     format!("duplicate observation of ray {id} in image {image:?}")
                 ));
             }
-            out.push(Row {
-                image: self.image.clone(),
-                frame: self
-                    .images
-                    .iter()
-                    .position(|i| *i == self.image)
-                    .unwrap_or(0) as u32,
-                dot,
-                line,
-            });
+            out.rows.push(Row { frame, dot, line });
         }
         Ok(out)
     }
@@ -286,79 +307,76 @@ pub fn reconstruct_stream(args: &ReconstructArgs) -> Result<StreamSummary> {
         None => None,
     };
     let (mut count, mut miss2) = (0, 0.0);
-    // The file is read on its own thread while the previous batch is reconstructed.
-    let (send, receive) = std::sync::mpsc::sync_channel::<Result<Vec<Row>>>(1);
-    let images = std::thread::scope(|scope| -> Result<usize> {
-        let reader = scope.spawn(move || loop {
-            let batch = rows.batch();
-            let end = batch.as_ref().map_or(true, |b| b.is_empty());
-            if send.send(batch).is_err() || end {
-                return rows.images.len();
-            }
-        });
-        for batch in receive {
-            let batch = batch?;
-            if batch.is_empty() {
-                break;
-            }
-            // Chunks of rows on all cores, each reconstructed and formatted (PLY and CSV).
-            let chunks = batch.len().div_ceil(CHUNK);
-            let outputs: Vec<_> = (0..chunks)
-                .into_par_iter()
-                .map(|k| {
-                    let mut ply = Vec::new();
-                    let mut text = String::new();
-                    let mut miss2 = 0.0;
-                    for row in &batch[k * CHUNK..((k + 1) * CHUNK).min(batch.len())] {
-                        let d = row.dot;
-                        let at = |why: String| {
-                            let why = format!("ray {} at ({}, {}): {why}", d.id, d.col, d.row);
-                            FileError::at(&args.obs, row.line, why)
-                        };
-                        let mut p = reconstruct(
-                            &rig,
-                            std::slice::from_ref(&d),
-                            method,
-                            args.sigma_px.filter(|_| model.is_none()),
-                            Some(&calibration),
-                        )
-                        .map_err(|e| at(e.root_cause().to_string()))?[0];
-                        if let Some(model) = &model {
-                            let q = model
-                                .reconstruct(rig.grid(), &d, method, model_frame)
-                                .map_err(|e| at(e.to_string()))?;
-                            if plate {
-                                p.point = q.point;
+    // The images' names by frame, for the CSV: one per image, whatever the number of dots.
+    let mut names: Vec<Box<str>> = Vec::new();
+    // The next batch is read while this one is reconstructed (on the other core).
+    let mut batch = rows.batch()?;
+    while !batch.rows.is_empty() {
+        names.append(&mut batch.new_images);
+        let rows_now = &batch.rows;
+        let (next, outputs) = rayon::join(
+            || rows.batch(),
+            || {
+                // Chunks of rows on all cores, each reconstructed and formatted (PLY and CSV).
+                let chunks = rows_now.len().div_ceil(CHUNK);
+                (0..chunks)
+                    .into_par_iter()
+                    .map(|k| {
+                        let mut ply = Vec::with_capacity(CHUNK * 64);
+                        let mut text = String::new();
+                        let mut miss2 = 0.0;
+                        let end = ((k + 1) * CHUNK).min(rows_now.len());
+                        for row in &rows_now[k * CHUNK..end] {
+                            let d = row.dot;
+                            let at = |why: String| {
+                                let why = format!("ray {} at ({}, {}): {why}", d.id, d.col, d.row);
+                                FileError::at(&args.obs, row.line, why)
+                            };
+                            let mut p = reconstruct_dot(
+                                &rig,
+                                &d,
+                                method,
+                                args.sigma_px.filter(|_| model.is_none()),
+                                Some(&calibration),
+                            )
+                            .map_err(|e| at(e.root_cause().to_string()))?;
+                            if let Some(model) = &model {
+                                let q = model
+                                    .reconstruct(rig.grid(), &d, method, model_frame)
+                                    .map_err(|e| at(e.to_string()))?;
+                                if plate {
+                                    p.point = q.point;
+                                }
+                                p.sigma = Some((q.image + q.calibration).diagonal().map(f64::sqrt));
                             }
-                            p.sigma = Some((q.image + q.calibration).diagonal().map(f64::sqrt));
+                            miss2 += p.miss * p.miss;
+                            push_point(&mut ply, &p, Some(row.frame), &layout);
+                            if csv.is_some() {
+                                let image = names.get(row.frame as usize).map_or("", |n| n);
+                                csv_line(&mut text, image, &p);
+                            }
                         }
-                        miss2 += p.miss * p.miss;
-                        push_point(&mut ply, &p, Some(row.frame), &layout);
-                        if csv.is_some() {
-                            csv_line(&mut text, &row.image, &p);
-                        }
-                    }
-                    Ok::<_, anyhow::Error>((ply, text, miss2))
-                })
-                .collect();
-            for output in outputs {
-                let (ply, text, m) = output?;
-                miss2 += m;
-                vertex_file
-                    .write_all(&ply)
-                    .with_context(|| format!("{}: cannot write", args.out.display()))?;
-                if let Some((pending, writer)) = &mut csv {
-                    writer
-                        .write_all(text.as_bytes())
-                        .with_context(|| format!("{}: cannot write", pending.target.display()))?;
-                }
+                        Ok::<_, anyhow::Error>((ply, text, miss2))
+                    })
+                    .collect::<Vec<_>>()
+            },
+        );
+        for output in outputs {
+            let (ply, text, m) = output?;
+            miss2 += m;
+            vertex_file
+                .write_all(&ply)
+                .with_context(|| format!("{}: cannot write", args.out.display()))?;
+            if let Some((pending, writer)) = &mut csv {
+                writer
+                    .write_all(text.as_bytes())
+                    .with_context(|| format!("{}: cannot write", pending.target.display()))?;
             }
-            count += batch.len();
         }
-        reader
-            .join()
-            .map_err(|_| anyhow::anyhow!("{}: the reader failed", args.obs.display()))
-    })?;
+        count += batch.rows.len();
+        batch = next?;
+    }
+    let images = names.len();
     if count == 0 {
         bail!(FileError::whole(&args.obs, "no dot observations"));
     }

@@ -57,6 +57,24 @@ fn fixture() -> &'static Path {
             .map(|l| format!("{l}\n"))
             .collect();
         std::fs::write(dir.join("dots.csv"), dots).unwrap();
+        // A cloud of several images, as PLY and CSV.
+        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+            .args([
+                "reconstruct",
+                "--system",
+                "system.json",
+                "--obs",
+                "sim/plate_obs.csv",
+            ])
+            .args(["--out", "multi.ply", "--csv", "multi.csv"])
+            .current_dir(&dir)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         dir
     })
 }
@@ -165,6 +183,13 @@ fn resized(name: &str) -> Vec<u8> {
     bytes.into_inner()
 }
 
+/// The fixture's camera.json with a 640 × 480 sensor instead of 768 × 512.
+fn small_camera() -> String {
+    let text = edited("camera.json", "768,", "640,");
+    assert_eq!(text.matches("512").count(), 1);
+    text.replace("512", "480")
+}
+
 const SCENARIO: &str = include_str!("../../scenarios/desk_rig.toml");
 
 fn cases() -> Vec<Case> {
@@ -249,8 +274,33 @@ fn cases() -> Vec<Case> {
         case("calibrate camera --init camera.json --images small --control sim/camera_control.csv --out cam.json",
             &["small/s1.png: the image size differs from the expected one: 576 × 384 pixels, the camera's sensor 768 × 512"])
             .with("small/s1.png", resized("s1.png")),
+        // A pixel size that is no pixel size.
+        case("calibrate camera --board circles:7x7 --images boards --out c.json --pixel-size -1",
+            &["--pixel-size", "-1 is not a positive finite number"]),
+        case("calibrate camera --board circles:7x7 --images boards --out c.json --pixel-size 0",
+            &["--pixel-size", "0 is not a positive finite number"]),
+        case("calibrate camera --board circles:7x7 --images boards --out c.json --pixel-size NaN",
+            &["--pixel-size", "NaN is not a positive finite number"]),
+        case("calibrate camera --board circles:7x7 --images boards --out c.json --pixel-size 1e30",
+            &["--pixel-size", "1e30 mm is not a pixel size (at most 1 mm)"]),
+        // Bright targets where a board's dark circles are expected: the hint names a flag that
+        // this command, and `measure`, takes; `measure --board` expects dark circles too.
+        case("calibrate camera --board circles:7x7 --images boards --out c.json",
+            &["boards/s1.png: no targets found", "bright targets found with --bright"])
+            .with("boards/s1.png", image_bytes("s1.png")),
+        case("measure boards/s1.png --board circles:7x7 --out m.csv",
+            &["boards/s1.png: no targets found", "bright targets found with --bright"])
+            .with("boards/s1.png", image_bytes("s1.png")),
         // calibrate projector
         case(&format!("{projector} --image-sigma-px 0"), &["--image-sigma-px", "0 is not a positive"]),
+        // Observations of another camera than camera.json's, refused as reconstruct refuses them.
+        case(&projector.replace("camera.json", "small.json"), &["plate_obs.csv:", "is off the 640 × 480 sensor"])
+            .with("small.json", small_camera()),
+        case(&resect.replace("camera.json", "small.json"), &["plate_obs.csv:", "is off the 640 × 480 sensor"])
+            .with("small.json", small_camera()),
+        // A system file where a camera file belongs: named as what it is.
+        case(&projector.replace("camera.json", "system.json"),
+            &["system.json: format \"deltaz.system/2\": a system calibration (system.json), not a camera file"]),
         case(&format!("{projector} --image-sigma-px NaN"), &["--image-sigma-px", "NaN is not a positive"]),
         case(projector, &["plate_control.csv: the plate's control points are coplanar"]).with(
             "sim/plate_control.csv",
@@ -300,6 +350,9 @@ fn cases() -> Vec<Case> {
             .with("big.json", oversized_system()),
         case("device upload system.json --near 2000 --far 1500", &["--near 2000 mm must be less than --far 1500 mm"]),
         case("device upload system.json --near 500 --far 1500 --identify-cell 0", &["--identify-cell", "0 is not a positive"]),
+        // Parameters the device's lookup grid cannot hold: the refusal says what would fit.
+        case("device upload system.json --near 1500 --far 2100 --identify-cell 4",
+            &["larger lookup grid than the device holds", "what fits: --identify-cell"]),
         case("device stream --system system.json --simulate 4000000000 --out s.ply", &["--simulate", "4000000000"]),
         case("device stream --system system.json --obs none.csv --out s.ply", &["none.csv", "No such file"]),
         // The stream went through, but its CSV cannot be written: the PLY is not left alone.
@@ -368,6 +421,122 @@ fn every_command_refuses_bad_input_cleanly() {
         cases.len(),
         failures.join("\n")
     );
+}
+
+/// Input the commands used to take wrongly or silently, now taken as it should be: each case
+/// exits 0 and `check` finds nothing wrong in (its directory, stdout, stderr).
+struct Accepted {
+    files: Vec<(&'static str, Vec<u8>)>,
+    args: &'static str,
+    check: fn(&Path, &str, &str) -> Vec<String>,
+}
+
+/// `what` appears in `text`, or a problem saying it does not.
+fn has(text: &str, what: &str) -> Vec<String> {
+    if text.contains(what) {
+        Vec::new()
+    } else {
+        vec![format!("lacks {what:?}")]
+    }
+}
+
+fn accepted() -> Vec<Accepted> {
+    vec![
+        // A points CSV of reconstruct over several images (the same ray in each), against the
+        // PLY of the same run: every point matched to itself.
+        Accepted {
+            files: Vec::new(),
+            args: "compare --reconstructed multi.csv --reference multi.ply",
+            check: |_, out, _| {
+                let mut p = has(out, "MSE (n-1 std of residuals): 0.0000 0.0000 0.0000 mm");
+                p.extend(has(out, "2:"));
+                p
+            },
+        },
+        // --quiet: nothing on stderr but warnings (the device's upload said so before).
+        Accepted {
+            files: vec![("frames/f1.png", image_bytes("p1.png"))],
+            args: "scan frames --system system.json --near 1600 --far 1900 --out clouds --quiet",
+            check: |_, _, err| {
+                (err.lines().filter(|l| !l.starts_with("warning: ")))
+                    .map(|l| format!("prints {l:?}"))
+                    .collect()
+            },
+        },
+        // An uncalibrated camera (the start of a calibration) exported with a warning.
+        Accepted {
+            files: Vec::new(),
+            args: "export opencv --camera sim/camera_init.json --out c.yml",
+            check: |_, _, err| has(err, "warning: sim/camera_init.json: not calibrated"),
+        },
+        // The plots of calibrate system are the system adjustment's: its plate images, not the
+        // field images of the bundle adjustment that started it.
+        Accepted {
+            files: Vec::new(),
+            args: "calibrate system --init camera.json --camera-obs sim/camera_obs.csv \
+                   --camera-control sim/camera_control.csv --control sim/plate_control.csv \
+                   --obs sim/plate_obs.csv --out all.json --plots plots",
+            check: |dir, _, _| {
+                let svg = std::fs::read_to_string(dir.join("plots/residual_vectors.svg"));
+                let svg = svg.unwrap_or_default();
+                let mut p = has(&svg, "p1: RMS");
+                if svg.contains("s1: RMS") {
+                    p.push("draws the field images".to_owned());
+                }
+                p
+            },
+        },
+        // The polarity flags every measuring command takes.
+        Accepted {
+            files: Vec::new(),
+            args: "measure sim_p1.png --bright --out m.csv",
+            check: |dir, _, _| {
+                let csv = std::fs::read_to_string(dir.join("m.csv")).unwrap_or_default();
+                if csv.lines().count() > 100 {
+                    Vec::new()
+                } else {
+                    vec![format!("{} lines measured", csv.lines().count())]
+                }
+            },
+        },
+    ]
+}
+
+#[test]
+fn commands_take_what_they_used_to_refuse_or_ignore() {
+    let root = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    for (index, case) in accepted().iter().enumerate() {
+        let dir = root.path().join(format!("accepted{index}"));
+        copy_dir(fixture(), &dir);
+        std::fs::write(dir.join("sim_p1.png"), image_bytes("p1.png")).unwrap();
+        for (name, bytes) in &case.files {
+            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
+            std::fs::write(dir.join(name), bytes).unwrap();
+        }
+        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
+            .args(case.args.split_whitespace())
+            .current_dir(&dir)
+            .output()
+            .unwrap();
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+        );
+        let mut problems = (case.check)(&dir, &stdout, &stderr);
+        if !out.status.success() {
+            problems.insert(0, format!("exit {:?}", out.status.code()));
+        }
+        if !problems.is_empty() {
+            failures.push(format!(
+                "{}: {}\n    {}",
+                case.args,
+                problems.join(", "),
+                stderr.trim()
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
 /// A reader that closes the pipe (`deltaz ... | head`) ends the command as it ends Unix tools:

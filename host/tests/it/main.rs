@@ -1,6 +1,7 @@
 //! The host crate's integration tests, one binary: each module is one former test file.
 mod accuracy;
 mod analyse_cli;
+mod atomic_outputs;
 mod back_accuracy;
 mod back_real;
 mod back_real_data;
@@ -26,9 +27,11 @@ mod measure;
 mod measure_cli;
 mod noncentral;
 mod objects;
+mod plots;
 mod projector_cli;
 mod readme;
 mod real_images;
+mod reconstruct_scale;
 mod resection_survey;
 mod residuals_cli;
 mod scan;
