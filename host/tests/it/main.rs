@@ -26,6 +26,7 @@ mod measure;
 mod measure_cli;
 mod noncentral;
 mod objects;
+mod parallel;
 mod projector_cli;
 mod readme;
 mod real_images;
