@@ -323,7 +323,7 @@ fn start_ellipse(s: &Scratch, blob: &Blob, background: f64) -> Option<([f64; 3],
 
 /// The pixels of `window` (`[c0, r0, c1, r1]`, inclusive) outside `exclude`, row by row as
 /// spans: `visit(row, first, last)`. `exclude` holds row runs `[c0, r, c1, r]` in row order and,
-/// within a row, in column order without overlaps (as [`super::detect::RunLabels::foreign_runs`]
+/// within a row, in column order without overlaps (as [`super::components::RunLabels::foreign_runs`]
 /// gives them).
 pub fn for_each_span(
     window: [usize; 4],
