@@ -7,6 +7,7 @@ mod back_real_data;
 mod back_sim;
 mod bad_input;
 mod board_calibration_opencv;
+mod board_geometry;
 mod calibration_paths;
 mod cli_calibration;
 mod compare_cli;
