@@ -28,6 +28,13 @@
 //! When part of the board is cut off by the image border, several offsets fit; the one whose
 //! missing circles are all predicted (by the plane homography of the found ones) outside the
 //! image is taken, and an ambiguous placement is an error rather than a guess.
+//!
+//! # Geometry
+//! The lattice found must be the declared board: every walked circle on it, at most a tenth of
+//! its circles predicted inside the image missing and none of its edge rows and columns missing
+//! where in view. A board of another kind (a symmetric grid's diagonals fit an asymmetric
+//! board) or size is refused, and the error says what the lattice is ("the 49 circles found
+//! form a circles:7x7 grid").
 
 use super::grid::walk_grid;
 use anyhow::{bail, Context, Result};
@@ -148,6 +155,8 @@ impl Board {
 
     /// Find the board among target centres (`radii`: their sizes, any consistent measure) in
     /// an image `width × height`; the labelled circles in OpenCV's order (cut-off ones absent).
+    /// A lattice of circles that is not this board (another kind or size) is refused, the
+    /// error naming what was found.
     pub fn find(
         &self,
         centres: &[Vector2<f64>],
@@ -158,6 +167,8 @@ impl Board {
         let needed = (self.cols * self.rows).div_ceil(2).max(4);
         let seeds = regular_seeds(centres);
         let mut best: Option<Vec<BoardPoint>> = None;
+        // The largest lattice walked: its size and what it is.
+        let mut largest: Option<(usize, String)> = None;
         let mut tried = 0;
         for &seed in &seeds {
             if best
@@ -180,21 +191,28 @@ impl Board {
                 continue;
             };
             let labels = walk_grid(&dots, start, (1000, 1000), a, b, (2000, 2000));
-            // Walk nodes to lattice units: the asymmetric grid's nearest neighbours are the
-            // diagonals (±1, ±1).
-            let walked: Vec<(usize, (i64, i64))> = labels
+            // Walk nodes (p along a, q along b).
+            let nodes: Vec<(usize, (i64, i64))> = labels
                 .iter()
                 .enumerate()
                 .filter_map(|(k, l)| {
                     let (r, c) = l.as_ref()?;
-                    let (p, q) = (i64::from(*c) - 1000, i64::from(*r) - 1000);
-                    Some((
-                        similar[k],
-                        match self.kind {
-                            GridKind::Symmetric => (p, q),
-                            GridKind::Asymmetric => (p + q, p - q),
-                        },
-                    ))
+                    Some((similar[k], (i64::from(*c) - 1000, i64::from(*r) - 1000)))
+                })
+                .collect();
+            if largest.as_ref().is_none_or(|(n, _)| nodes.len() > *n) {
+                largest = Some((nodes.len(), lattice_kind(&nodes, a, b)));
+            }
+            // Walk nodes to lattice units: the asymmetric grid's nearest neighbours are the
+            // diagonals (±1, ±1).
+            let walked: Vec<(usize, (i64, i64))> = nodes
+                .iter()
+                .map(|&(k, (p, q))| {
+                    let at = match self.kind {
+                        GridKind::Symmetric => (p, q),
+                        GridKind::Asymmetric => (p + q, p - q),
+                    };
+                    (k, at)
                 })
                 .collect();
             if walked.len() < needed {
@@ -208,16 +226,22 @@ impl Board {
         }
         match best {
             Some(b) if b.len() >= needed => Ok(b),
-            _ => bail!(
-                "no {}x{} {} circle grid found among {} targets",
-                self.cols,
-                self.rows,
-                match self.kind {
-                    GridKind::Symmetric => "symmetric",
-                    GridKind::Asymmetric => "asymmetric",
-                },
-                centres.len()
-            ),
+            _ => {
+                let found = match largest {
+                    Some((n, kind)) if n >= 4 => format!(": the {n} circles found form {kind}"),
+                    _ => String::new(),
+                };
+                bail!(
+                    "no {self} board ({} × {} {} circle grid) among {} targets{found}",
+                    self.cols,
+                    self.rows,
+                    match self.kind {
+                        GridKind::Symmetric => "symmetric",
+                        GridKind::Asymmetric => "asymmetric",
+                    },
+                    centres.len()
+                )
+            }
         }
     }
 
@@ -271,21 +295,20 @@ impl Board {
                             })
                         })
                         .collect();
-                    if points.len() * 2 >= walked.len() {
+                    // The board's geometry: every circle of the lattice on it.
+                    if points.len() == walked.len() {
                         candidates.push(points);
                     }
                 }
             }
         }
-        let Some(most) = candidates.iter().map(Vec::len).max() else {
-            return Ok(None);
-        };
-        candidates.retain(|c| c.len() == most);
-        // Of the placements with the most circles on the board, those with the fewest missing
-        // circles predicted inside the image (the cut-off ones fall outside it).
+        // ... and the board's circles in view found: those missing are cut off by the border
+        // (predicted outside the image), but for a few (a glare, a covered circle).
+        candidates.retain(|c| self.fills_view(c, centres, width, height));
+        // Of the placements, those with the fewest missing circles predicted inside the image.
         let missing: Vec<usize> = candidates
             .iter()
-            .map(|c| self.missing_inside(c, centres, width, height))
+            .map(|c| self.missing_inside(c, centres, width, height).len())
             .collect();
         let fewest = missing.iter().copied().min().unwrap_or(0);
         let mut kept = missing.iter();
@@ -350,17 +373,20 @@ impl Board {
         homography(&pairs)
     }
 
-    /// How many board circles not in `points` are predicted inside the image (farther than
-    /// half a pitch from its border).
+    /// The board circles (row, col) not in `points` that are predicted inside the image
+    /// (farther than half a pitch from its border); all of them when the homography fails.
     fn missing_inside(
         &self,
         points: &[BoardPoint],
         centres: &[Vector2<f64>],
         width: usize,
         height: usize,
-    ) -> usize {
+    ) -> Vec<(usize, usize)> {
+        let missing = self
+            .circles()
+            .filter(|&(r, c)| !points.iter().any(|p| p.row == r && p.col == c));
         let Some(h) = self.homography(points, centres) else {
-            return usize::MAX;
+            return missing.collect();
         };
         let at = |c: f64, r: f64| {
             let v = h * Vector3::new(c, r, 1.0);
@@ -370,8 +396,7 @@ impl Board {
             .norm()
             .min((at(0.0, 1.0) - at(0.0, 0.0)).norm());
         let margin = 0.5 * pitch;
-        self.circles()
-            .filter(|&(r, c)| !points.iter().any(|p| p.row == r && p.col == c))
+        missing
             .filter(|&(r, c)| {
                 let (x, y) = self.lattice(r, c);
                 let p = at(x as f64, y as f64);
@@ -380,8 +405,86 @@ impl Board {
                     && p.x <= width as f64 - 1.0 - margin
                     && p.y <= height as f64 - 1.0 - margin
             })
-            .count()
+            .collect()
     }
+
+    /// Whether a placement shows the whole board within the image: at most a tenth of the
+    /// circles predicted inside the image are missing (a detection loses a few, to glare or a
+    /// cover; a board declared larger than the one in view, or a grid of another kind laid on
+    /// it, leaves rows or a good share empty), and none of the board's four edge rows and
+    /// columns is missing where it is in view (a board declared one row too long).
+    fn fills_view(
+        &self,
+        points: &[BoardPoint],
+        centres: &[Vector2<f64>],
+        width: usize,
+        height: usize,
+    ) -> bool {
+        let missing = self.missing_inside(points, centres, width, height);
+        if 10 * missing.len() > points.len() + missing.len() {
+            return false;
+        }
+        let edges: [&dyn Fn(usize, usize) -> bool; 4] = [
+            &|r, _| r == 0,
+            &|r, _| r == self.rows - 1,
+            &|_, c| c == 0,
+            &|_, c| c == self.cols - 1,
+        ];
+        edges.iter().all(|on_edge| {
+            let shown = missing.iter().any(|&(r, c)| on_edge(r, c));
+            !shown || points.iter().any(|p| on_edge(p.row, p.col))
+        })
+    }
+}
+
+impl std::fmt::Display for Board {
+    /// The spec: `circles:COLSxROWS` or `acircles:COLSxROWS` (with `:SPACING` when not 1).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let kind = match self.kind {
+            GridKind::Symmetric => "circles",
+            GridKind::Asymmetric => "acircles",
+        };
+        write!(f, "{kind}:{}x{}", self.cols, self.rows)?;
+        if self.spacing != 1.0 {
+            write!(f, ":{}", self.spacing)?;
+        }
+        Ok(())
+    }
+}
+
+/// What a walked lattice is (walk nodes (p, q) along the image steps `a`, `b`): "a circles:7x7
+/// grid" when it fills a rectangle of nodes (the columns along the step nearer the image's
+/// rows), "an acircles:4x11 grid" when its diagonals (p + q, p − q) fill an asymmetric grid,
+/// otherwise its extent.
+fn lattice_kind(nodes: &[(usize, (i64, i64))], a: Vector2<f64>, b: Vector2<f64>) -> String {
+    let extent = |f: &dyn Fn(i64, i64) -> (i64, i64)| {
+        let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
+        for &(_, (p, q)) in nodes {
+            let (x, y) = f(p, q);
+            lo = (lo.0.min(x), lo.1.min(y));
+            hi = (hi.0.max(x), hi.1.max(y));
+        }
+        ((hi.0 - lo.0 + 1) as usize, (hi.1 - lo.1 + 1) as usize)
+    };
+    let n = nodes.len();
+    let (w, h) = extent(&|p, q| (p, q));
+    if n == w * h {
+        // OpenCV's columns run along the board's more nearly horizontal direction.
+        let (cols, rows) = if a.x.abs() / a.norm() >= b.x.abs() / b.norm() {
+            (w, h)
+        } else {
+            (h, w)
+        };
+        return format!("a circles:{cols}x{rows} grid");
+    }
+    let (x, y) = extent(&|p, q| (p + q, p - q));
+    if x % 2 == 0 && n == x / 2 * y {
+        return format!("an acircles:{}x{y} grid", x / 2);
+    }
+    if y % 2 == 0 && n == y / 2 * x {
+        return format!("an acircles:{}x{x} grid", y / 2);
+    }
+    format!("a lattice of {w} × {h} steps with gaps (not a whole grid)")
 }
 
 /// How a placement of the board faces the image, greater preferred (see the module's doc): seen

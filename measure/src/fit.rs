@@ -323,7 +323,7 @@ fn start_ellipse(s: &Scratch, blob: &Blob, background: f64) -> Option<([f64; 3],
 
 /// The pixels of `window` (`[c0, r0, c1, r1]`, inclusive) outside `exclude`, row by row as
 /// spans: `visit(row, first, last)`. `exclude` holds row runs `[c0, r, c1, r]` in row order and,
-/// within a row, in column order without overlaps (as [`super::detect::RunLabels::foreign_runs`]
+/// within a row, in column order without overlaps (as [`super::components::RunLabels::foreign_runs`]
 /// gives them).
 pub fn for_each_span(
     window: [usize; 4],
@@ -474,6 +474,55 @@ mod tests {
                     "param {k} at ({x}, {y}): {num} vs {}",
                     g[k]
                 );
+            }
+        }
+    }
+
+    /// The AVX2 pass and the portable one give the same normal equations to the bit (the same
+    /// operations lane by lane: no fused multiply-add, IEEE division and square root), on a
+    /// window of a noisy blurred ellipse padded with weight-0 pixels, at the start, near and at
+    /// the fitted parameters. Skips visibly on a processor without AVX2.
+    #[test]
+    fn avx2_and_portable_passes_agree_to_the_bit() {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 = std::arch::is_x86_feature_detected!("avx2");
+            if !deltaz_testkit::require("avx2", avx2, "an x86-64 processor with AVX2") {
+                return;
+            }
+            let truth = [0.3, -0.2, 0.05, 0.01, 0.08, 150.0, 1.1, 40.0, 0.1, -0.2];
+            let mut s = Scratch::default();
+            let mut state = 1u32;
+            for r in -7..=7 {
+                for c in -8..=8 {
+                    let (x, y) = (c as f32, r as f32);
+                    state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
+                    let noise = ((state >> 16) % 1000) as f32 / 250.0 - 2.0;
+                    s.push(x, y, model(&truth, x, y).0 + noise, 1.0);
+                }
+            }
+            while s.x.len() % LANES != 0 {
+                s.push(0.0, 0.0, 0.0, 0.0);
+            }
+            for p in [
+                [0.0, 0.0, 0.06, 0.0, 0.06, 120.0, 1.5, 38.0, 0.0, 0.0],
+                [
+                    0.28, -0.19, 0.051, 0.011, 0.079, 149.0, 1.12, 40.2, 0.09, -0.21,
+                ],
+                truth.map(f64::from),
+            ] {
+                let p = Params::from_column_slice(&p);
+                // SAFETY: AVX2 was detected above.
+                let fast = unsafe { normal_equations_avx2(&p, &s) };
+                let portable = normal_equations_lanes(&p, &s);
+                let bits = |n: &Normal| {
+                    let mut v: Vec<u64> = n.jtj.iter().map(|x| x.to_bits()).collect();
+                    v.extend(n.jtr.iter().map(|x| x.to_bits()));
+                    v.push(n.cost.to_bits());
+                    v
+                };
+                assert_eq!(bits(&fast), bits(&portable), "at {p}");
+                assert!(portable.cost > 0.0 && portable.jtj[(5, 5)] > 0.0);
             }
         }
     }

@@ -22,20 +22,20 @@
 
 pub mod bench;
 pub mod board;
+pub mod components;
 pub mod crlb;
 pub mod detect;
 pub mod fit;
 pub mod grid;
 pub mod layout;
+pub mod population;
 pub mod render;
 pub mod target_field;
 
 use anyhow::{bail, Context, Result};
+use components::{components, components_in, Components, RunLabels};
 use deltaz_shared::identify::Identifier;
-use detect::{
-    check_shape, components, components_in, noise_sigma, BackgroundField, Blob, DetectParams,
-    GrayView, Rejection, RunLabels,
-};
+use detect::{check_shape, noise_sigma, BackgroundField, Blob, DetectParams, GrayView, Rejection};
 use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
 use std::path::Path;
@@ -126,7 +126,9 @@ pub struct Measurement {
 ///    pixels of *other* components (and 2 pixels around them) but nothing else: a large blob
 ///    around the targets (a dark room, a frame) does not empty their windows;
 /// 4. the gates ([`gate_fits`]): residual and template-vs-gravity limits from the noise, the
-///    target's amplitude and size, and the spread of the image's own fits.
+///    target's amplitude and size, and the spread of the image's own fits;
+/// 5. the population ([`population::gate_faint`]): a target far fainter than the targets around
+///    it (a speck of a textured background) is left out.
 pub fn measure<P: Copy + Into<f64> + Sync>(
     img: &GrayView<P>,
     params: &MeasureParams,
@@ -141,7 +143,7 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
         background = BackgroundField::estimate(img, d.polarity, tile);
         found = components(img, d.polarity, &background, threshold);
     }
-    let detect::Components { mut blobs, labels } = found;
+    let Components { mut blobs, labels } = found;
     let split = split_merged(img, d, &background, threshold, &labels, &mut blobs);
     // One blob's verdict: shape tests, then the centre (ungated).
     let centre = |scratch: &mut fit::Scratch,
@@ -216,8 +218,9 @@ pub fn measure<P: Copy + Into<f64> + Sync>(
         }
     }
     let (targets, gated) = gate_fits(targets, sigma.max(img.dn), params);
-
     rejected.extend(gated);
+    let (targets, faint) = population::gate_faint(targets);
+    rejected.extend(faint);
     Measurement {
         targets,
         rejected,

@@ -11,10 +11,17 @@
 //!
 //! Damping: the diagonals of U and V are multiplied by (1 + μ). After convergence, S⁻¹ σ0² is the
 //! covariance of the camera parameters (σ0² = vᵀPv / redundancy).
+//!
+//! On all cores, and the same to the bit on any number of them: the points are linearised and
+//! eliminated in parallel, U and the right-hand sides summed in point order, S by dense products
+//! over groups of points in chunks of columns, each summing the groups in order; the Cholesky
+//! factor and S⁻¹ by [`crate::dense`].
 
 use super::problem::Problem;
+use crate::dense::{cholesky, spd_inverse, PRODUCT_COLUMNS};
 use crate::residual::{image_residual, INNER, POSE};
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, MatrixXx3, Vector2, Vector3};
+use rayon::prelude::*;
 
 /// Why the adjustment failed.
 #[derive(Debug, Clone, PartialEq)]
@@ -160,6 +167,94 @@ pub fn cost(problem: &Problem) -> f64 {
     total
 }
 
+/// One observation's share of U and g_c: its residual and its camera Jacobian compacted to
+/// (slot in the point's rows, state index, column).
+struct CameraColumns {
+    value: Vector2<f64>,
+    cols: Vec<(usize, usize, Vector2<f64>)>,
+}
+
+/// One point linearised: its block, its observations' camera columns, and its terms of vᵀPv in
+/// order (each observation's, then its control's).
+struct PointLinear {
+    block: PointBlock,
+    observations: Vec<CameraColumns>,
+    costs: Vec<f64>,
+}
+
+/// Linearises the observations of point `j` (indices `obs`).
+fn linearise_point(
+    problem: &Problem,
+    layout: &Layout,
+    j: usize,
+    obs: &[usize],
+) -> Result<PointLinear, SolveError> {
+    let mut rows: Vec<usize> = layout.inner.iter().map(|(_, s)| *s).collect();
+    for &n in obs {
+        rows.extend(
+            layout.poses[problem.observations[n].image]
+                .iter()
+                .map(|(_, s)| *s),
+        );
+    }
+    let mut w = DMatrix::zeros(rows.len(), 3);
+    let mut v = Matrix3::zeros();
+    let mut g_p = Vector3::zeros();
+    let mut offset = layout.inner.len();
+    let mut observations = Vec::with_capacity(obs.len());
+    let mut costs = Vec::with_capacity(obs.len() + 1);
+    for &n in obs {
+        let o = &problem.observations[n];
+        let r = image_residual(
+            &problem.inner,
+            &o.photo,
+            &problem.poses[o.image],
+            &problem.xyz[j],
+        );
+        if r.z_cam >= 0.0 {
+            return Err(SolveError::BehindCamera {
+                image: problem.images[o.image].clone(),
+                point: problem.points[j].clone(),
+            });
+        }
+        costs.push(r.value.norm_squared());
+        let mut cols: Vec<(usize, usize, Vector2<f64>)> = Vec::new();
+        for (slot, (k, s)) in layout.inner.iter().enumerate() {
+            cols.push((slot, *s, r.d_inner.column(*k).into_owned()));
+        }
+        for (slot, (k, s)) in layout.poses[o.image].iter().enumerate() {
+            cols.push((offset + slot, *s, r.d_pose.column(*k).into_owned()));
+        }
+        offset += layout.poses[o.image].len();
+        for (slot, _, ja) in &cols {
+            let row = ja.transpose() * r.d_point;
+            for k in 0..3 {
+                w[(*slot, k)] += row[k];
+            }
+        }
+        v += r.d_point.transpose() * r.d_point;
+        g_p -= r.d_point.transpose() * r.value;
+        observations.push(CameraColumns {
+            value: r.value,
+            cols,
+        });
+    }
+    if let Some(c) = &problem.control[j] {
+        let weight = problem.control_weight(c);
+        let d = problem.xyz[j] - c.xyz;
+        costs.push(weight * d.norm_squared());
+        v += Matrix3::identity() * weight;
+        g_p -= d * weight;
+    }
+    Ok(PointLinear {
+        block: PointBlock { rows, w, v, g: g_p },
+        observations,
+        costs,
+    })
+}
+
+/// The normal equations: the points linearised on all cores, then U, g_c and vᵀPv summed in
+/// point order (the same sums on any number of cores).
 fn assemble(problem: &Problem, layout: &Layout) -> Result<Normal, SolveError> {
     let m = layout.camera;
     let mut u = DMatrix::zeros(m, m);
@@ -170,47 +265,19 @@ fn assemble(problem: &Problem, layout: &Layout) -> Result<Normal, SolveError> {
             by_point[o.point].push(n);
         }
     }
-    let mut points = Vec::with_capacity(problem.xyz.len());
+    let linear: Vec<Result<PointLinear, SolveError>> = by_point
+        .par_iter()
+        .enumerate()
+        .map(|(j, obs)| linearise_point(problem, layout, j, obs))
+        .collect();
+    // The first error in point order, as on one core.
+    let linear: Vec<PointLinear> = linear.into_iter().collect::<Result<_, _>>()?;
+    let mut points = Vec::with_capacity(linear.len());
     let mut total = 0.0;
-    for (j, obs) in by_point.iter().enumerate() {
-        let mut rows: Vec<usize> = layout.inner.iter().map(|(_, s)| *s).collect();
-        for &n in obs {
-            rows.extend(
-                layout.poses[problem.observations[n].image]
-                    .iter()
-                    .map(|(_, s)| *s),
-            );
-        }
-        let mut w = DMatrix::zeros(rows.len(), 3);
-        let mut v = Matrix3::zeros();
-        let mut g_p = Vector3::zeros();
-        let mut offset = layout.inner.len();
-        for &n in obs {
-            let o = &problem.observations[n];
-            let r = image_residual(
-                &problem.inner,
-                &o.photo,
-                &problem.poses[o.image],
-                &problem.xyz[j],
-            );
-            if r.z_cam >= 0.0 {
-                return Err(SolveError::BehindCamera {
-                    image: problem.images[o.image].clone(),
-                    point: problem.points[j].clone(),
-                });
-            }
-            total += r.value.norm_squared();
-            // This observation's camera Jacobian, compacted to (state index, column).
-            let mut cols: Vec<(usize, usize, nalgebra::Vector2<f64>)> = Vec::new();
-            for (slot, (k, s)) in layout.inner.iter().enumerate() {
-                cols.push((slot, *s, r.d_inner.column(*k).into_owned()));
-            }
-            for (slot, (k, s)) in layout.poses[o.image].iter().enumerate() {
-                cols.push((offset + slot, *s, r.d_pose.column(*k).into_owned()));
-            }
-            offset += layout.poses[o.image].len();
+    for point in linear {
+        for CameraColumns { value, cols } in &point.observations {
             for (a, (_, sa, ja)) in cols.iter().enumerate() {
-                g_c[*sa] -= ja.dot(&r.value);
+                g_c[*sa] -= ja.dot(value);
                 for (_, sb, jb) in &cols[a..] {
                     let value = ja.dot(jb);
                     u[(*sa, *sb)] += value;
@@ -219,23 +286,11 @@ fn assemble(problem: &Problem, layout: &Layout) -> Result<Normal, SolveError> {
                     }
                 }
             }
-            for (slot, _, ja) in &cols {
-                let row = ja.transpose() * r.d_point;
-                for k in 0..3 {
-                    w[(*slot, k)] += row[k];
-                }
-            }
-            v += r.d_point.transpose() * r.d_point;
-            g_p -= r.d_point.transpose() * r.value;
         }
-        if let Some(c) = &problem.control[j] {
-            let weight = problem.control_weight(c);
-            let d = problem.xyz[j] - c.xyz;
-            total += weight * d.norm_squared();
-            v += Matrix3::identity() * weight;
-            g_p -= d * weight;
+        for cost in &point.costs {
+            total += cost;
         }
-        points.push(PointBlock { rows, w, v, g: g_p });
+        points.push(point.block);
     }
     Ok(Normal {
         u,
@@ -245,38 +300,101 @@ fn assemble(problem: &Problem, layout: &Layout) -> Result<Normal, SolveError> {
     })
 }
 
-/// The reduced camera system S (and its right-hand side) for damping μ.
+/// Points eliminated together in one dense matrix product.
+const GROUP_POINTS: usize = 32;
+
+/// A group of points' Y and W side by side over the union of their rows: Y_g W_gᵀ =
+/// Σ_p Y_p W_pᵀ of the group's points p.
+struct Group {
+    /// The camera states the group's points touch, ascending.
+    rows: Vec<usize>,
+    /// rows × 3 (points): the points' Y.
+    y: DMatrix<f64>,
+    /// rows × 3 (points): the points' W.
+    w: DMatrix<f64>,
+}
+
+impl Group {
+    fn new(points: &[PointBlock], ys: &[MatrixXx3<f64>]) -> Self {
+        let mut rows: Vec<usize> = points.iter().flat_map(|p| p.rows.iter().copied()).collect();
+        rows.sort_unstable();
+        rows.dedup();
+        let mut y = DMatrix::zeros(rows.len(), 3 * points.len());
+        let mut w = DMatrix::zeros(rows.len(), 3 * points.len());
+        for (i, (p, yp)) in points.iter().zip(ys).enumerate() {
+            for (a, r) in p.rows.iter().enumerate() {
+                let at = rows.partition_point(|x| x < r);
+                for k in 0..3 {
+                    y[(at, 3 * i + k)] += yp[(a, k)];
+                    w[(at, 3 * i + k)] += p.w[(a, k)];
+                }
+            }
+        }
+        Self { rows, y, w }
+    }
+}
+
+/// The reduced camera system S (and its right-hand side) for damping μ: V_p⁻¹ and
+/// Y_p = W_p V_p⁻¹ of the points on all cores; then S = U − Σ_p Y_p W_pᵀ by groups of
+/// [`GROUP_POINTS`] points, each one dense product Y_g W_gᵀ over the rows its points touch,
+/// the lower triangle in chunks of [`PRODUCT_COLUMNS`] columns on all cores, each chunk
+/// subtracting the groups in order (the same sums on any number of cores).
 fn reduce(normal: &Normal, mu: f64) -> Result<Reduced, SolveError> {
     let mut s = normal.u.clone();
     for k in 0..s.nrows() {
         s[(k, k)] *= 1.0 + mu;
     }
+    let (v_inv, ys): (Vec<Matrix3<f64>>, Vec<MatrixXx3<f64>>) = normal
+        .points
+        .par_iter()
+        .map(|PointBlock { w, v, .. }| {
+            let mut vd = *v;
+            for k in 0..3 {
+                vd[(k, k)] *= 1.0 + mu;
+            }
+            let vi = vd.try_inverse().ok_or(SolveError::Singular)?;
+            Ok((vi, w * vi)) // Y: rows × 3
+        })
+        .collect::<Result<Vec<_>, _>>()?
+        .into_iter()
+        .unzip();
     let mut b = normal.g_c.clone();
-    let mut v_inv = Vec::with_capacity(normal.points.len());
-    for PointBlock { rows, w, v, g: g_p } in &normal.points {
-        let mut vd = *v;
-        for k in 0..3 {
-            vd[(k, k)] *= 1.0 + mu;
-        }
-        let vi = vd.try_inverse().ok_or(SolveError::Singular)?;
-        let y = w * vi; // rows × 3
-        let yg = &y * g_p;
+    for (PointBlock { rows, g: g_p, .. }, y) in normal.points.iter().zip(&ys) {
+        let yg = y * g_p;
         for (a, &ra) in rows.iter().enumerate() {
             b[ra] -= yg[a];
         }
-        // The lower triangle of Y Wᵀ, column by column (column-major storage).
-        let (y0, y1, y2) = (y.column(0), y.column(1), y.column(2));
-        for (c, &rc) in rows.iter().enumerate() {
-            let (w0, w1, w2) = (w[(c, 0)], w[(c, 1)], w[(c, 2)]);
-            let mut to = s.column_mut(rc);
-            for (a, &ra) in rows.iter().enumerate() {
-                if ra >= rc {
-                    to[ra] -= y0[a] * w0 + y1[a] * w1 + y2[a] * w2;
+    }
+    let groups: Vec<Group> = normal
+        .points
+        .par_chunks(GROUP_POINTS)
+        .zip(ys.par_chunks(GROUP_POINTS))
+        .map(|(points, ys)| Group::new(points, ys))
+        .collect();
+    let m = s.nrows();
+    s.as_mut_slice()
+        .par_chunks_mut((PRODUCT_COLUMNS * m).max(1))
+        .enumerate()
+        .for_each(|(chunk, columns)| {
+            let first = chunk * PRODUCT_COLUMNS;
+            let last = first + columns.len() / m.max(1);
+            for group in &groups {
+                let lo = group.rows.partition_point(|&r| r < first);
+                let hi = group.rows.partition_point(|&r| r < last);
+                if lo == hi {
+                    continue;
+                }
+                // Y_g times the chunk's rows of W_g, transposed: the chunk's columns.
+                let piece = &group.y * group.w.rows(lo, hi - lo).transpose();
+                for (c, &rc) in group.rows[lo..hi].iter().enumerate() {
+                    let to = &mut columns[(rc - first) * m..(rc - first + 1) * m];
+                    // The lower triangle: the rows from rc on.
+                    for (a, &ra) in group.rows.iter().enumerate().skip(lo + c) {
+                        to[ra] -= piece[(a, c)];
+                    }
                 }
             }
-        }
-        v_inv.push(vi);
-    }
+        });
     s.fill_upper_triangle_with_lower_triangle();
     Ok(Reduced { s, b, v_inv })
 }
@@ -297,7 +415,7 @@ pub fn solve(problem: &mut Problem, options: &SolverOptions) -> Result<Solution,
     while iterations < options.max_iterations {
         iterations += 1;
         let Reduced { s, b, v_inv } = reduce(&normal, mu)?;
-        let Some(chol) = s.cholesky() else {
+        let Some(chol) = cholesky(s) else {
             mu *= 10.0;
             if mu > 1e8 {
                 return Err(SolveError::Singular);
@@ -307,7 +425,7 @@ pub fn solve(problem: &mut Problem, options: &SolverOptions) -> Result<Solution,
         let dc = chol.solve(&b);
         let dp: Vec<Vector3<f64>> = normal
             .points
-            .iter()
+            .par_iter()
             .zip(&v_inv)
             .map(
                 |(
@@ -344,7 +462,7 @@ pub fn solve(problem: &mut Problem, options: &SolverOptions) -> Result<Solution,
         }
     }
     let s = reduce(&normal, 0.0)?.s;
-    let inverse = crate::dense::spd_inverse(&s.cholesky().ok_or(SolveError::Singular)?);
+    let inverse = spd_inverse(&cholesky(s).ok_or(SolveError::Singular)?);
     let redundancy = equations - unknowns;
     let sigma0 = (normal.cost / redundancy as f64).sqrt();
     Ok(Solution {

@@ -18,7 +18,9 @@
 //! a field target is seen in most field images, so its coupling is dense in the field poses.
 
 use super::SystemError;
+use crate::dense::{cholesky, spd_inverse, times_transpose, transpose_times};
 use nalgebra::{DMatrix, DVector, Matrix2, Vector2};
+use rayon::prelude::*;
 
 /// Observation groups with their own variance component: plate targets, dots, field targets.
 pub(super) const GROUPS: usize = 3;
@@ -108,49 +110,79 @@ pub(super) struct Normal {
 }
 
 impl Normal {
-    /// The normal equations of `rows` weighted by 1/σ² of their group.
+    /// The normal equations of `rows` weighted by 1/σ² of their group: U, g and vᵀPv summed
+    /// row by row, each block's V, g and W from its own rows (in their order) on all cores.
     pub fn new(n: usize, kinds: &[Kind], rows: Vec<Linear>, sigma: &[f64; GROUPS]) -> Self {
-        let mut normal = Normal {
-            u: DMatrix::zeros(n, n),
-            g: DVector::zeros(n),
-            kinds: kinds
-                .iter()
-                .map(|k| KindNormal {
-                    v: k.sizes.iter().map(|&m| DMatrix::zeros(m, m)).collect(),
-                    g: k.sizes.iter().map(|&m| DVector::zeros(m)).collect(),
-                    w: DMatrix::zeros(k.rows.len(), k.width()),
-                })
-                .collect(),
-            cost: [0.0; GROUPS + 1],
-            rows: Vec::new(),
-        };
-        for row in &rows {
-            let w = 1.0 / (sigma[row.group] * sigma[row.group]);
-            normal.cost[row.group] += w * row.value.norm_squared();
+        let weight = |row: &Linear| 1.0 / (sigma[row.group] * sigma[row.group]);
+        let mut u = DMatrix::zeros(n, n);
+        let mut g = DVector::zeros(n);
+        let mut cost = [0.0; GROUPS + 1];
+        // The rows of every block, kind by kind.
+        let mut of_block: Vec<Vec<Vec<usize>>> = kinds
+            .iter()
+            .map(|k| vec![Vec::new(); k.sizes.len()])
+            .collect();
+        for (i, row) in rows.iter().enumerate() {
+            let w = weight(row);
+            cost[row.group] += w * row.value.norm_squared();
             for (ca, ja) in &row.global {
-                normal.g[*ca] -= w * ja.dot(&row.value);
+                g[*ca] -= w * ja.dot(&row.value);
                 for (cb, jb) in &row.global {
-                    normal.u[(*ca, *cb)] += w * ja.dot(jb);
+                    u[(*ca, *cb)] += w * ja.dot(jb);
                 }
             }
-            if let Some(Local { kind, block, d }) = &row.local {
-                let (k, kn) = (&kinds[*kind], &mut normal.kinds[*kind]);
-                kn.v[*block] += d.transpose() * d * w;
-                kn.g[*block] -= d.transpose() * row.value * w;
-                let off = k.offsets[*block];
-                for (ca, ja) in &row.global {
-                    // By construction every global column of a block's observation is a row of
-                    // its kind.
-                    let Some(ra) = k.row_of[*ca] else { continue };
-                    let dw = d.transpose() * ja * w;
-                    for (b, v) in dw.iter().enumerate() {
-                        kn.w[(ra, off + b)] += v;
-                    }
-                }
+            if let Some(local) = &row.local {
+                of_block[local.kind][local.block].push(i);
             }
         }
-        normal.rows = rows;
-        normal
+        let kinds = kinds
+            .iter()
+            .zip(&of_block)
+            .map(|(k, of_block)| {
+                let mut w = DMatrix::zeros(k.rows.len(), k.width());
+                // W's columns block by block (column-major: each block's columns are one slice).
+                let mut columns = Vec::with_capacity(k.sizes.len());
+                let mut rest = w.as_mut_slice();
+                for &m in &k.sizes {
+                    let (these, more) = rest.split_at_mut(m * k.rows.len());
+                    columns.push(these);
+                    rest = more;
+                }
+                let (v, g): (Vec<_>, Vec<_>) = columns
+                    .into_par_iter()
+                    .zip(of_block)
+                    .zip(&k.sizes)
+                    .map(|((wb, block_rows), &m)| {
+                        let mut v = DMatrix::zeros(m, m);
+                        let mut g = DVector::zeros(m);
+                        for &i in block_rows {
+                            let row = &rows[i];
+                            let (p, d) = (weight(row), &row.local.as_ref().expect("a block's").d);
+                            v += d.transpose() * d * p;
+                            g -= d.transpose() * row.value * p;
+                            for (ca, ja) in &row.global {
+                                // By construction every global column of a block's observation
+                                // is a row of its kind.
+                                let Some(ra) = k.row_of[*ca] else { continue };
+                                let dw = d.transpose() * ja * p;
+                                for (b, value) in dw.iter().enumerate() {
+                                    wb[b * k.rows.len() + ra] += value;
+                                }
+                            }
+                        }
+                        (v, g)
+                    })
+                    .unzip();
+                KindNormal { v, g, w }
+            })
+            .collect();
+        Normal {
+            u,
+            g,
+            kinds,
+            cost,
+            rows,
+        }
     }
 
     /// A prior observation of global parameters `at`: weight matrix `p`, state minus observed
@@ -193,25 +225,34 @@ pub(super) struct Reduced {
     y: Vec<DMatrix<f64>>,
 }
 
-/// Eliminates every block.
+/// Eliminates every block: V_b⁻¹ and Y_b = W_b V_b⁻¹ on all cores, b in block order, and
+/// S −= Y Wᵀ by chunks of columns on all cores ([`times_transpose`]).
 pub(super) fn reduce(normal: &Normal, kinds: &[Kind]) -> Result<Reduced, SystemError> {
     let mut s = normal.u.clone();
     let mut b = normal.g.clone();
     let mut v_inv = Vec::with_capacity(kinds.len());
     let mut ys = Vec::with_capacity(kinds.len());
     for (kind, kn) in kinds.iter().zip(&normal.kinds) {
+        let eliminated: Vec<(DMatrix<f64>, DMatrix<f64>)> =
+            kn.v.par_iter()
+                .enumerate()
+                .map(|(blk, v)| {
+                    let (off, m) = (kind.offsets[blk], kind.sizes[blk]);
+                    let vi = v.clone().try_inverse().ok_or(SystemError::Singular)?;
+                    let yb = kn.w.columns(off, m) * &vi;
+                    Ok((vi, yb))
+                })
+                .collect::<Result<_, _>>()?;
         let mut y = kn.w.clone();
         let mut yg = DVector::zeros(kind.rows.len());
         let mut inverses = Vec::with_capacity(kn.v.len());
-        for (blk, v) in kn.v.iter().enumerate() {
-            let (off, m) = (kind.offsets[blk], kind.sizes[blk]);
-            let vi = v.clone().try_inverse().ok_or(SystemError::Singular)?;
-            let yb = kn.w.columns(off, m) * &vi;
+        for (blk, (vi, yb)) in eliminated.into_iter().enumerate() {
             yg += &yb * &kn.g[blk];
-            y.columns_mut(off, m).copy_from(&yb);
+            y.columns_mut(kind.offsets[blk], kind.sizes[blk])
+                .copy_from(&yb);
             inverses.push(vi);
         }
-        let ywt = &y * kn.w.transpose();
+        let ywt = times_transpose(&y, &kn.w);
         for (a, &ra) in kind.rows.iter().enumerate() {
             b[ra] -= yg[a];
             for (c, &rc) in kind.rows.iter().enumerate() {
@@ -263,17 +304,16 @@ pub(super) struct Covariance {
 
 /// The covariance of the reduced system and of every block.
 pub(super) fn covariance(kinds: &[Kind], reduced: &Reduced) -> Result<Covariance, SystemError> {
-    let s_inv =
-        crate::dense::spd_inverse(&reduced.s.clone().cholesky().ok_or(SystemError::Singular)?);
+    let s_inv = spd_inverse(&cholesky(reduced.s.clone()).ok_or(SystemError::Singular)?);
     let mut cross = Vec::with_capacity(kinds.len());
     let mut own = Vec::with_capacity(kinds.len());
     for ((kind, y), v_inv) in kinds.iter().zip(&reduced.y).zip(&reduced.v_inv) {
         let rows = &kind.rows;
         let sub = DMatrix::from_fn(rows.len(), rows.len(), |a, b| s_inv[(rows[a], rows[b])]);
-        let c = -(y.transpose() * sub);
+        let c = -transpose_times(y, &sub);
         own.push(
             v_inv
-                .iter()
+                .par_iter()
                 .enumerate()
                 .map(|(blk, vi)| {
                     let (off, m) = (kind.offsets[blk], kind.sizes[blk]);
@@ -307,37 +347,45 @@ impl Covariance {
         (self.own[kind][block].clone(), cross)
     }
 
-    /// The sum of the redundancy numbers of each group's observations, 2 − tr(P A Σ Aᵀ) each.
+    /// The sum of the redundancy numbers of each group's observations, 2 − tr(P A Σ Aᵀ) each
+    /// (the observations' numbers on all cores, summed in their order).
     pub fn redundancy(
         &self,
         normal: &Normal,
         kinds: &[Kind],
         sigma: &[f64; GROUPS],
     ) -> [f64; GROUPS] {
-        let mut red = [0.0; GROUPS];
-        for row in &normal.rows {
-            let weight = 1.0 / (sigma[row.group] * sigma[row.group]);
-            // q = A Σ Aᵀ over the observation's few non-zero columns.
-            let mut q = Matrix2::zeros();
-            for (ca, ja) in &row.global {
-                for (cb, jb) in &row.global {
-                    q += ja * jb.transpose() * self.s_inv[(*ca, *cb)];
-                }
-            }
-            if let Some(Local { kind, block, d }) = &row.local {
-                let k = &kinds[*kind];
-                let (off, m) = (k.offsets[*block], k.sizes[*block]);
-                let mut cg = DMatrix::zeros(m, 2);
-                for (col, j) in &row.global {
-                    if let Some(r) = k.row_of[*col] {
-                        cg += self.cross[*kind].view((off, r), (m, 1)) * j.transpose();
+        let numbers: Vec<f64> = normal
+            .rows
+            .par_iter()
+            .map(|row| {
+                let weight = 1.0 / (sigma[row.group] * sigma[row.group]);
+                // q = A Σ Aᵀ over the observation's few non-zero columns.
+                let mut q = Matrix2::zeros();
+                for (ca, ja) in &row.global {
+                    for (cb, jb) in &row.global {
+                        q += ja * jb.transpose() * self.s_inv[(*ca, *cb)];
                     }
                 }
-                let c = d * cg;
-                let o = d * &self.own[*kind][*block] * d.transpose();
-                q += Matrix2::from_fn(|i, j| c[(i, j)] + c[(j, i)] + o[(i, j)]);
-            }
-            red[row.group] += 2.0 - weight * q.trace();
+                if let Some(Local { kind, block, d }) = &row.local {
+                    let k = &kinds[*kind];
+                    let (off, m) = (k.offsets[*block], k.sizes[*block]);
+                    let mut cg = DMatrix::zeros(m, 2);
+                    for (col, j) in &row.global {
+                        if let Some(r) = k.row_of[*col] {
+                            cg += self.cross[*kind].view((off, r), (m, 1)) * j.transpose();
+                        }
+                    }
+                    let c = d * cg;
+                    let o = d * &self.own[*kind][*block] * d.transpose();
+                    q += Matrix2::from_fn(|i, j| c[(i, j)] + c[(j, i)] + o[(i, j)]);
+                }
+                2.0 - weight * q.trace()
+            })
+            .collect();
+        let mut red = [0.0; GROUPS];
+        for (row, number) in normal.rows.iter().zip(numbers) {
+            red[row.group] += number;
         }
         red
     }

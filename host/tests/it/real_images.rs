@@ -422,3 +422,71 @@ fn board_calibration_writes_residuals_plots_and_json() {
         2 * (observations.len() - rejected)
     )));
 }
+
+/// A board must match its declared geometry: every grid photo is refused under another kind or
+/// a smaller size (the message naming the grid found; a larger board may be one cut off by the
+/// border, which the rendered boards of `board_geometry` test), and `calibrate camera --board acircles:7x7` on the
+/// symmetric photos calibrates nothing.
+#[test]
+fn wrong_boards_refused_on_photos() {
+    use deltaz_measure::board::Board;
+    let Some(dir) = photos() else { return };
+    let cases = [
+        (
+            "circles/circles",
+            1..=7,
+            &["acircles:7x7", "circles:6x7", "circles:7x6"][..],
+            "a circles:7x7 grid",
+        ),
+        (
+            "asymmetric_circles/acircles",
+            1..=3,
+            &["circles:7x13", "acircles:7x12", "acircles:6x13"][..],
+            "an acircles:7x13 grid",
+        ),
+        (
+            "asymmetric_circles/acircles",
+            4..=4,
+            &["circles:5x5", "acircles:4x5", "acircles:5x4"][..],
+            "an acircles:5x5 grid",
+        ),
+    ];
+    for (stem, numbers, specs, found) in cases {
+        for k in numbers {
+            let path = dir.join(format!("opencv_extra/{stem}{k}.png"));
+            for spec in specs {
+                let mut params = MeasureParams::default();
+                params.detect.polarity = Polarity::Dark;
+                params.board = Some(spec.parse::<Board>().unwrap());
+                let measured = deltaz_host::workflows::observations::measure_images(
+                    std::slice::from_ref(&path),
+                    &params,
+                    None,
+                )
+                .unwrap();
+                let name = format!("{stem}{k} as {spec}");
+                assert!(measured.observations.is_empty(), "{name}: accepted");
+                let err = measured.failed.join("\n");
+                assert!(
+                    err.contains(&format!("no {spec} board")) && err.contains(found),
+                    "{name}: {err}"
+                );
+            }
+        }
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("camera.json");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_deltaz"))
+        .args(["calibrate", "camera", "--board", "acircles:7x7", "--images"])
+        .arg(dir.join("opencv_extra/circles"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && !out.exists(), "{err}");
+    assert!(
+        err.contains("found in 0 image(s)") && err.contains("form a circles:7x7 grid"),
+        "{err}"
+    );
+}
