@@ -36,6 +36,11 @@ impl Calibration {
     /// system` (or of `calibrate projector`'s joint model).
     pub fn load(path: &Path) -> Result<Self> {
         let (file, rig) = SystemFile::load(path)?;
+        Self::new(file, rig, path)
+    }
+
+    /// [`Calibration::load`] of a system in memory; `path` names it in errors.
+    pub fn new(file: SystemFile, rig: SystemRig, path: &Path) -> Result<Self> {
         if file.content.frame != SystemFrame::Camera {
             bail!(
                 "{}: the system is in {}: the back analysis needs the camera system",
@@ -63,6 +68,11 @@ impl Calibration {
             model,
             split,
         })
+    }
+
+    /// Its rig.
+    pub fn rig(&self) -> &SystemRig {
+        &self.rig
     }
 
     /// The fingerprint (16 hex digits).
@@ -103,20 +113,29 @@ pub fn frames(paths: &[PathBuf], calibration: Option<&Calibration>) -> Result<Ve
                 );
             }
         }
-        // One frame per `frame` value (per cloud without it), in the order they appear.
-        let mut split: BTreeMap<u32, Vec<_>> = BTreeMap::new();
-        for v in &cloud.vertices {
-            split.entry(v.frame.unwrap_or(0)).or_default().push(*v);
-        }
-        for vertices in split.into_values() {
-            let frame = match calibration {
-                Some(c) => with_calibration(path, &cloud, &vertices, c)?,
-                None => with_own_sigma(path, &vertices)?,
-            };
-            frames.push(frame);
-        }
+        frames.extend(cloud_frames(path, &cloud, calibration)?);
     }
     Ok(frames)
+}
+
+/// The frames of one cloud (`path` names it): one per `frame` value (the whole cloud without
+/// it), in the order of the values, each point with its covariance.
+pub fn cloud_frames(
+    path: &Path,
+    cloud: &Cloud,
+    calibration: Option<&Calibration>,
+) -> Result<Vec<Frame>> {
+    let mut split: BTreeMap<u32, Vec<_>> = BTreeMap::new();
+    for v in &cloud.vertices {
+        split.entry(v.frame.unwrap_or(0)).or_default().push(*v);
+    }
+    split
+        .into_values()
+        .map(|vertices| match calibration {
+            Some(c) => with_calibration(path, cloud, &vertices, c),
+            None => with_own_sigma(path, &vertices),
+        })
+        .collect()
 }
 
 /// A cloud must be in the camera system and label its points by ray.
@@ -234,7 +253,27 @@ pub fn analyse_clouds(
         let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
         anyhow::anyhow!("{}: {e}", names.join(", "))
     })?;
-    let covariance = match &calibration {
+    let fingerprint = match &calibration {
+        Some(c) => Some(c.fingerprint().to_owned()),
+        None => read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint),
+    };
+    Ok(back_report(
+        paths,
+        calibration.as_ref(),
+        fingerprint,
+        analysis,
+    ))
+}
+
+/// The report of an analysis of the clouds at `paths` (what `analysis.json` holds): the
+/// calibration that gave the points' covariance, or none (the clouds' own σ).
+pub fn back_report(
+    paths: &[PathBuf],
+    calibration: Option<&Calibration>,
+    fingerprint: Option<String>,
+    analysis: deltaz_surface::BackAnalysis,
+) -> BackReport {
+    let covariance = match calibration {
         Some(c) => format!(
             "the calibration's covariance (system {}): image noise, each ray's own error and \
              the share common to all points",
@@ -243,15 +282,11 @@ pub fn analyse_clouds(
         None => "the clouds' own σ per axis (no share common to all points: give --system for it)"
             .to_owned(),
     };
-    let fingerprint = calibration
-        .as_ref()
-        .map(|c| c.fingerprint().to_owned())
-        .or_else(|| read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint));
-    Ok(BackReport {
+    BackReport {
         format: ANALYSIS_FORMAT.to_owned(),
         clouds: paths.to_vec(),
         fingerprint,
         covariance,
         analysis,
-    })
+    }
 }

@@ -109,6 +109,7 @@ pub fn back_dots(model: &BackModel, spacing: f64) -> Vec<LatticeDot> {
 /// Error and error/σ of an index over draws.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Errors {
+    sum: f64,
     sq: f64,
     z2: f64,
     n: usize,
@@ -117,9 +118,15 @@ pub struct Errors {
 impl Errors {
     /// Adds an error with its σ.
     pub fn push(&mut self, error: f64, sigma: f64) {
+        self.sum += error;
         self.sq += error * error;
         self.z2 += (error / sigma).powi(2);
         self.n += 1;
+    }
+
+    /// Mean error.
+    pub fn mean(&self) -> f64 {
+        self.sum / self.n.max(1) as f64
     }
 
     /// RMS error.
@@ -168,6 +175,12 @@ pub struct IndexErrors {
     pub trunk_inclination: Errors,
     /// Largest scoliometer angle (°).
     pub atr_max: Errors,
+    /// Kyphosis (°).
+    pub kyphosis: Errors,
+    /// Lordosis (°).
+    pub lordosis: Errors,
+    /// The mirror-asymmetry map, at every third level (mm).
+    pub asymmetry: Errors,
     /// The largest |rotation| of each draw (°).
     pub largest_rotation: Vec<f64>,
 }
@@ -237,6 +250,56 @@ impl IndexErrors {
                 .push(m - largest(truth.iter().filter_map(|t| t.4)), sd);
         }
         self.largest_rotation.push(a.rotation_max_deg.abs());
+        self.add_sagittal(model, a, &axes);
+        self.add_asymmetry(model, a, &axes);
+    }
+
+    /// Kyphosis and lordosis against the truth's, by the analysis' definition over the true
+    /// sagittal slopes at the same levels.
+    fn add_sagittal(&mut self, model: &BackModel, a: &BackAnalysis, axes: &Axes) {
+        let slopes: Vec<f64> = a
+            .levels
+            .iter()
+            .map(|l| model.sagittal_slope(axes, l.y).unwrap().to_degrees())
+            .collect();
+        let Some(itl) = (0..slopes.len()).max_by(|&i, &j| slopes[i].total_cmp(&slopes[j])) else {
+            return;
+        };
+        let least = |r: std::ops::Range<usize>| r.map(|i| slopes[i]).fold(f64::INFINITY, f64::min);
+        let truth = [least(itl + 1..slopes.len()), least(0..itl)];
+        let measured = [
+            (a.kyphosis_deg, a.kyphosis_deg_sigma),
+            (a.lordosis_deg, a.lordosis_deg_sigma),
+        ];
+        for ((m, t), errors) in measured
+            .into_iter()
+            .zip(truth)
+            .zip([&mut self.kyphosis, &mut self.lordosis])
+        {
+            if let ((Some(m), Some(sd)), true) = (m, t.is_finite()) {
+                errors.push(m - (slopes[itl] - t), sd);
+            }
+        }
+    }
+
+    /// The asymmetry map against the truth's, s(a) − s(2x − a) about the true symmetry point.
+    fn add_asymmetry(&mut self, model: &BackModel, a: &BackAnalysis, axes: &Axes) {
+        let map = &a.asymmetry;
+        for (j, &v) in map.v.iter().enumerate().step_by(3) {
+            let Some((x, _)) = model.symmetry_point(axes, v) else {
+                continue;
+            };
+            for (i, &across) in map.a.iter().enumerate() {
+                let k = j * map.a.len() + i;
+                let (Some(value), Some(sd)) = (map.values[k], map.sigmas[k]) else {
+                    continue;
+                };
+                let depth = |u: f64| model.depth(axes, u, v);
+                if let (Some(d1), Some(d2)) = (depth(across), depth(2.0 * x - across)) {
+                    self.asymmetry.push(value - (d1 - d2), sd);
+                }
+            }
+        }
     }
 }
 

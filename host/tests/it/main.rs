@@ -3,6 +3,8 @@ mod accuracy;
 mod analyse_cli;
 mod atomic_outputs;
 mod back_accuracy;
+mod back_image_path;
+mod back_images;
 mod back_real;
 mod back_real_data;
 mod back_sim;

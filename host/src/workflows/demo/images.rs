@@ -9,7 +9,10 @@
 //!    ([`crate::workflows::system`]).
 //! 3. Upload the system to the device (in process, the firmware's logic over the wire
 //!    protocol) with the identification parameters for the objects' depth.
-//! 4. Scan the object frames through it ([`crate::workflows::scan`]): measure, identify, intersect.
+//! 4. Scan the object frames through it ([`crate::workflows::scan`]): measure, identify, intersect;
+//!    then a scoliotic back, three swayed frames rendered into `images/back/`, through the
+//!    largest back rig the device holds, calibrated and uploaded for it ([`super::back`]), and
+//!    analyse it ([`deltaz_surface`]).
 //! 5. The accuracy on each object against its truth beside its floor: the image noise (the
 //!    calibration's estimated σ of the dots, with the wire's centroid quantisation that the
 //!    device computes from) and the calibration's covariance, its share common
@@ -17,12 +20,16 @@
 //! 6. Write `cloud.ply` (every object point, with its frame), `system.json`, `report.md`,
 //!    `report.json` and the plots: the field targets' residuals (`residual_vectors.svg`,
 //!    `residual_histogram.svg`) and accuracy maps of the sphere's and the plane's form and
-//!    the torso's error (`sphere_errors.svg`, `plane_errors.svg`, `torso_errors.svg`).
+//!    the torso's error (`sphere_errors.svg`, `plane_errors.svg`, `torso_errors.svg`); the
+//!    back's cloud (`back.ply`), its rig's calibration (`back_system.json`), its analysis
+//!    (`analysis.json`) and its report (`report.html`, as `deltaz analyse back` writes them).
 
+use super::back::{scan_demo_back, DemoBack};
 use super::{bar, slashed, v3, write_results};
 use crate::io::ply::{encode_with, CloudInfo, Encoding};
 use crate::io::system_file::SystemFile;
 use crate::link::Device;
+use crate::report::back_report::report_html;
 use crate::report::calibration_plots::residual_plots;
 use crate::report::object_accuracy::{
     error_against_truth, fit_plane, fit_sphere, form, AtFloor, ObjectPoint,
@@ -60,7 +67,7 @@ struct Scanned {
 /// Runs the demo and writes its files into `out` (created if needed): the rendered images
 /// first (`out/images/`), the results when everything is computed.
 pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
-    let steps = bar(5, "rendering the images");
+    let steps = bar(6, "rendering the images");
     let scenario = Scenario::paper();
     let spec = ImageSpec::default();
     let images = out.join("images");
@@ -105,8 +112,15 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     )?;
     steps.inc(1);
 
-    steps.set_message("accuracy against the truth");
+    steps.set_message("scanning a scoliotic back on the device");
     let truth = true_rig(&scenario);
+    let back = scan_demo_back(&images, (&spec, seed), &mut device)?;
+    let back_json = serde_json::to_string_pretty(&back.report)? + "\n";
+    let back_html = report_html(&back.report)?;
+    let back_ply = back_cloud(&back)?;
+    let back_system = back.system.to_json()?;
+
+    steps.set_message("accuracy against the truth");
     let objects: BTreeMap<String, Object> = test_objects(depth).into_iter().collect();
     let core = model.core_covariance.clone();
     let mut kinds: BTreeMap<&str, Scanned> = BTreeMap::new();
@@ -251,6 +265,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
             "plane": plane,
             "torso": {"error": torso_error},
         },
+        "back": back_figures(&back),
     });
     let md = report_markdown(&report)?;
     let info = CloudInfo {
@@ -262,7 +277,13 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     let ply = encode_with(&cloud, Encoding::BinaryLittleEndian, &info);
     steps.finish_and_clear();
 
-    write_results(out, &ply, &system, &plot_files, &report, &md)?;
+    let extra: [(&str, &[u8]); 4] = [
+        ("back.ply", &back_ply),
+        ("back_system.json", back_system.as_bytes()),
+        ("analysis.json", back_json.as_bytes()),
+        ("report.html", back_html.as_bytes()),
+    ];
+    write_results(out, &ply, &system, &plot_files, (&report, &md), &extra)?;
     Ok(report)
 }
 
@@ -324,14 +345,71 @@ fn at_floor(v: &serde_json::Value) -> Result<String> {
     ))
 }
 
+/// The back's cloud as `deltaz scan` would write it (`back.ply`).
+fn back_cloud(back: &DemoBack) -> Result<Vec<u8>> {
+    let system = &back.system;
+    let frames = &back.scanned.frames;
+    let points: Vec<_> = frames.iter().flat_map(|f| f.found.points.clone()).collect();
+    let info = CloudInfo {
+        frame: system.content.frame.to_string(),
+        fingerprint: Some(system.fingerprint.clone()),
+        frames: Some(
+            frames
+                .iter()
+                .flat_map(|f| std::iter::repeat_n(f.frame as u32, f.found.points.len()))
+                .collect(),
+        ),
+        centroid_step_px: back.scanned.cloud.centroid_step_px,
+    };
+    Ok(encode_with(&points, Encoding::BinaryLittleEndian, &info))
+}
+
+/// The back's figures: its scan, the largest surface rotation and the symmetry line's ends
+/// against the model's truth at the analysis' levels.
+fn back_figures(back: &DemoBack) -> serde_json::Value {
+    let a = &back.scanned.analysis;
+    let axes = crate::simulate::back::Axes {
+        across: a.axes.across.into(),
+        axis: a.axes.axis.into(),
+        up: a.axes.up.into(),
+    };
+    let model = &back.models[0];
+    let truth = a
+        .levels
+        .iter()
+        .filter_map(|l| model.rotation(&axes, l.y))
+        .map(f64::to_degrees)
+        .fold(0.0_f64, |m, r| if r.abs() > m.abs() { r } else { m });
+    json!({
+        "frames": back.scanned.frames.len(),
+        "points": back.scanned.cloud.vertices.len(),
+        "levels": a.levels.len(),
+        "spacing_mm": a.spacing_mm,
+        "rotation_max_deg": a.rotation_max_deg,
+        "rotation_max_sigma_deg": a.rotation_max_deg_sigma,
+        "rotation_max_truth_deg": truth,
+        "lateral_deviation_max_mm": a.lateral_deviation_max_mm,
+        "lateral_deviation_max_sigma_mm": a.lateral_deviation_max_mm_sigma,
+    })
+}
+
 /// The one-line summary `deltaz demo` prints.
 pub fn summary(report: &serde_json::Value) -> Result<String> {
     let o = &report["objects"];
+    let b = &report["back"];
+    let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
     Ok(format!(
-        "sphere form {}\nplane flatness {}\ntorso error {}",
+        "sphere form {}\nplane flatness {}\ntorso error {}\nscoliotic back ({} frames through \
+         the device, dots {:.0} mm apart): largest surface rotation {:.1} ± {:.1}° (truth \
+         {:.1}°), report.html",
         at_floor(&o["sphere"]["form"])?,
         at_floor(&o["plane"]["flatness"])?,
-        at_floor(&o["torso"]["error"])?
+        at_floor(&o["torso"]["error"])?,
+        b["frames"],
+        num(&b["spacing_mm"]),
+        num(&b["rotation_max_deg"]),
+        num(&b["rotation_max_sigma_deg"]),
+        num(&b["rotation_max_truth_deg"]),
     ))
 }
 

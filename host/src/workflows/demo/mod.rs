@@ -2,6 +2,7 @@
 //! ([`images`], the default) or from simulated image observations ([`observations`],
 //! `--observations`).
 
+pub mod back;
 pub mod images;
 pub mod observations;
 
@@ -40,23 +41,25 @@ fn slashed(v: &serde_json::Value) -> String {
 }
 
 /// The demo's result files, written into `out` once everything is computed, all or nothing:
-/// `cloud.ply`, `system.json`, the plots, `report.json` and `report.md`.
+/// `cloud.ply`, `system.json`, the plots, `report.json`, `report.md` and the `extra` files
+/// (name, content).
 fn write_results(
     out: &Path,
     ply: &[u8],
     system: &SystemFile,
     plots: &[crate::report::calibration_plots::Plot],
-    report: &serde_json::Value,
-    md: &str,
+    (report, md): (&serde_json::Value, &str),
+    extra: &[(&str, &[u8])],
 ) -> Result<()> {
     let system = system.to_json()?;
     let report = serde_json::to_string_pretty(report)? + "\n";
-    let files = [
+    let mut files = vec![
         (out.join("cloud.ply"), ply),
         (out.join("system.json"), system.as_bytes()),
         (out.join("report.json"), report.as_bytes()),
         (out.join("report.md"), md.as_bytes()),
     ];
+    files.extend(extra.iter().map(|(name, bytes)| (out.join(name), *bytes)));
     let files: Vec<(&Path, &[u8])> = files.iter().map(|(p, b)| (p.as_path(), *b)).collect();
     crate::report::plots::write_with_plots(&files, Some(out), plots)?;
     Ok(())

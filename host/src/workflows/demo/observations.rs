@@ -342,7 +342,7 @@ pub fn run(out: &Path, seed: u64) -> Result<serde_json::Value> {
     steps.finish_and_clear();
 
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    write_results(out, &ply, &system, &plot_files, &report, &md)?;
+    write_results(out, &ply, &system, &plot_files, (&report, &md), &[])?;
     Ok(report)
 }
 
