@@ -11,6 +11,7 @@
 //! | [`identify`] | section 4 (open problem) | which projector ray made each detected dot (epipolar segments) |
 //! | [`intersection`] | eqs (8), (9) | λ, λp, and a least-squares closest approach |
 //! | [`paper`] | Tables 1-4 | the paper's published figures |
+//! | [`ray_table`] | eq. (5) | the device's packed rays: a model of the pattern and 24-bit slopes |
 //! | [`rig`] | section 2 | camera + projector: an image point and a ray id → a 3D point |
 //! | [`protocol`] | — | the host ↔ device wire protocol (messages, frames, calibration blob) |
 //!
@@ -37,6 +38,7 @@ pub mod intersection;
 pub mod paper;
 pub mod projector;
 pub mod protocol;
+pub mod ray_table;
 pub mod rig;
 pub mod rotation;
 

@@ -99,8 +99,9 @@ enum What {
         /// Observations CSV `image,point,col,row[,kind]` (dot rows; point = ray id).
         #[arg(long, conflicts_with = "simulate")]
         obs: Option<PathBuf>,
-        /// Simulate this many frames (1 to 100,000) of the system's dots on plates Z = 0, 100,
-        /// 200 mm.
+        /// Simulate this many frames (1 to 100,000) of the system's dots on three plates 100 mm
+        /// apart in front of the camera: Z = 0, 100, 200 mm of a plate frame; across the
+        /// camera's axis from where the pattern's middle ray passes it, in the camera system.
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
         simulate: Option<u32>,
         /// Output PLY (binary; mm, the system's frame, the calibration's fingerprint, each
