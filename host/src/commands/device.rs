@@ -35,8 +35,8 @@ pub struct DeviceOpts {
     /// Run the firmware in QEMU (mps2-an386) and talk to it over a pty; `--qemu=ELF` names the
     /// firmware (default: thumbv7em-none-eabihf/release/mps2_an386 in the build directory that
     /// holds this program).
-    #[arg(long, global = true, num_args = 0..=1, require_equals = true, default_missing_value = "")]
-    qemu: Option<PathBuf>,
+    #[arg(long, global = true, num_args = 0..=1, require_equals = true)]
+    qemu: Option<Option<PathBuf>>,
     /// Response timeout (ms).
     #[arg(long, global = true, default_value_t = 3000)]
     timeout_ms: u64,
@@ -48,13 +48,10 @@ impl DeviceOpts {
         LinkArgs {
             port: self.port.clone(),
             baud: self.baud,
-            qemu: self.qemu.as_ref().map(|elf| {
-                if elf.as_os_str().is_empty() {
-                    default_firmware_elf()
-                } else {
-                    elf.clone()
-                }
-            }),
+            qemu: self
+                .qemu
+                .as_ref()
+                .map(|elf| elf.clone().unwrap_or_else(default_firmware_elf)),
             timeout: std::time::Duration::from_millis(self.timeout_ms),
             output,
         }

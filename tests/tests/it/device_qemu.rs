@@ -221,3 +221,34 @@ fn soak(points: usize) {
     assert_eq!(line, LineCounts::default(), "the clean line carried damage");
     assert_eq!(stats.points as usize, points, "a request ran twice");
 }
+
+/// Bare `--qemu` (as the README documents it), before or after the subcommand, starts the
+/// firmware built next to `deltaz`, and a clean session reports a clean line.
+#[test]
+fn bare_qemu_flag_starts_the_default_firmware() {
+    firmware_elf();
+    for args in [
+        ["device", "--qemu", "info", "--json"],
+        ["device", "info", "--qemu", "--json"],
+    ] {
+        let out = std::process::Command::new(deltaz_tests::deltaz_binary())
+            .args(args)
+            .output()
+            .expect("run deltaz");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{args:?}: {text} {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            text.contains("\"protocol\":5") && text.contains("\"source\":\"fixed\""),
+            "{text}"
+        );
+    }
+    // The boot line is read before the session: a clean line carries nothing else.
+    let mut device = Device::new(Qemu::spawn(&firmware_elf()).expect("start QEMU"));
+    device.info().expect("info");
+    device.stats().expect("stats");
+    assert_eq!(device.line_counts(), LineCounts::default());
+}

@@ -4,7 +4,8 @@
 use deltaz_host::link::Device;
 use deltaz_tests::pattern::{pattern_rig, plate_centroids};
 
-/// The budget: at most 16 bytes per point for request and response together.
+/// The labelled budget: 15.13 bytes per point for request and response together, asserted
+/// to the hundredth's neighbourhood (15.1-15.2).
 #[test]
 fn bytes_per_point_of_a_440_dot_frame() {
     let rig = pattern_rig();
@@ -31,6 +32,11 @@ fn bytes_per_point_of_a_440_dot_frame() {
     // headers, CRC, COBS and delimiters.
     assert!((5.0..5.1).contains(&request), "{request}");
     assert!((10.0..10.1).contains(&response), "{response}");
-    assert!(request + response <= 16.0, "{}", request + response);
+    // Measured 15.13 (5.09 + 10.04).
+    assert!(
+        (15.1..15.2).contains(&(request + response)),
+        "{}",
+        request + response
+    );
     assert!(fps >= 30.0);
 }
