@@ -40,3 +40,26 @@ fn bytes_per_point_of_a_440_dot_frame() {
     );
     assert!(fps >= 30.0);
 }
+
+/// `device stream --simulate` of a calibration in the camera system puts its plates in front of
+/// the camera (the planes Z = 0, 100, 200 of that system pass through the camera and see no
+/// dot), and in a plate frame on the planes Z = 0, 100, 200 of that frame as before.
+#[test]
+fn simulated_plates_lie_in_front_of_the_camera_in_either_frame() {
+    use deltaz_host::io::system_file::SystemFrame;
+    use deltaz_host::workflows::stream::{plate_dots, simulated_plates};
+    let rig = deltaz_tests::torso::rig();
+    assert!(
+        plate_dots(&rig, 0.0).is_empty(),
+        "Z = 0 of the camera system"
+    );
+    let plates = simulated_plates(&rig, &SystemFrame::Camera).unwrap();
+    for plate in &plates {
+        assert!(plate.len() > 300, "{} dots", plate.len());
+    }
+    let plate_frame = SystemFrame::Plate { image: "p1".into() };
+    let pattern = pattern_rig();
+    let plates = simulated_plates(&pattern, &plate_frame).unwrap();
+    assert_eq!(plates[0], plate_dots(&pattern, 0.0));
+    assert_eq!(plates[2], plate_dots(&pattern, 200.0));
+}
