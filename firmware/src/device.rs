@@ -9,15 +9,16 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use deltaz_shared::camera::{InnerOrientation, PixelGrid};
 use deltaz_shared::identify::{Assignment, DepthRange, Identifier, IdentifyError};
-use deltaz_shared::projector::{Projector, ProjectorRay, RayCursor};
+use deltaz_shared::projector::{Projector, RayCursor};
 use deltaz_shared::protocol::calibration::{
-    decode_calibration_from, CalibrationHeader, IdentifyParams, WireRay,
+    decode_calibration_from, CalibrationHeader, IdentifyParams,
 };
 use deltaz_shared::protocol::stream::{tag, Batch, FrameWriter, RequestView};
 use deltaz_shared::protocol::{
-    centroid_fraction_bits, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, Dot, ErrorCode,
-    PointResult, PointStatus, WireError, MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
+    centroid_fraction_bits, BoardClock, CalibrationSummary, Centroid, DeviceInfo, DeviceStats, Dot,
+    ErrorCode, PointResult, PointStatus, WireError, MAX_BATCH, MAX_FRAME, PROTOCOL_VERSION,
 };
+use deltaz_shared::ray_table::RayTable;
 use deltaz_shared::rig::{Method, Rig};
 use embedded_storage::nor_flash::NorFlash;
 use nalgebra::{Matrix3, Vector3};
@@ -25,22 +26,30 @@ use serde::Serialize;
 
 /// The firmware version reported by `Info` (the crate version).
 pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
-/// The most projector rays a calibration may hold.
+/// The most projector rays a calibration may hold (central; see [`Rays::capacity`] for a
+/// non-central one).
 pub const MAX_RAYS: usize = deltaz_shared::protocol::MAX_RAYS;
-/// The longest calibration blob (bytes): [`MAX_RAYS`] rays of at most 28 bytes plus the header.
-/// A board's store slots hold at least this much (the blob is never in RAM).
+/// The longest calibration blob (bytes): [`MAX_RAYS`] rays of 8 bytes (or the non-central
+/// ones of 17) plus the header. A board's store slots hold at least this much (the blob is
+/// never in RAM).
 pub const MAX_CALIBRATION: usize = 16 * 1024;
 
-/// A calibration's projector rays, f32, where the device keeps them.
-type RayTable = heapless::Vec<ProjectorRay<f32>, MAX_RAYS>;
+/// A calibration's projector rays, packed ([`deltaz_shared::ray_table`]), where the device
+/// keeps them: 8 bytes a central ray.
+pub type Rays = RayTable<{ deltaz_shared::protocol::RAY_POOL }>;
 
-/// The device's rig: f32, centred on the camera (its camera centre is zero), over a ray table
+/// The device's rig: f32, centred on the camera (its camera centre is zero), over the ray table
 /// the device holds in place.
-pub type DeviceRig<'a> = Rig<f32, &'a [ProjectorRay<f32>]>;
+pub type DeviceRig<'a> = Rig<f32, &'a Rays>;
 
-/// The device's dot identifier: f32, [`MAX_RAYS`] rays, 2048 cells (768 × 512 pixels in cells
-/// of 16), 3072 cell entries (a 440-ray torso calibration fills about 1,900); 21.5 KB.
-pub type DeviceIdentifier = Identifier<f32, MAX_RAYS, 2048, 3072>;
+/// Cells of the device's identifier grid.
+pub const IDENTIFIER_CELLS: usize = 1536;
+/// Cell entries of the device's identifier grid.
+pub const IDENTIFIER_ENTRIES: usize = 5120;
+
+/// The device's dot identifier: f32, [`MAX_RAYS`] rays, [`IDENTIFIER_CELLS`] cells (768 × 512
+/// pixels in cells of 16; larger cells where needed), [`IDENTIFIER_ENTRIES`] cell entries.
+pub type DeviceIdentifier = Identifier<f32, MAX_RAYS, IDENTIFIER_CELLS, IDENTIFIER_ENTRIES>;
 
 /// The board's instruments: a tick counter timing the compute (SysTick on a board) and, where
 /// the board measures it, the stack's high-water mark.
@@ -54,6 +63,10 @@ pub trait Probe {
     /// The most stack used since boot (bytes); 0 when the board does not measure it.
     fn stack_peak(&mut self) -> u32 {
         0
+    }
+    /// The clock the board runs on, where it knows it.
+    fn clock(&self) -> Option<BoardClock> {
+        None
     }
 }
 
@@ -79,8 +92,8 @@ struct Active {
 
 impl Active {
     /// The rig over this calibration's rays, checked when it was activated.
-    fn rig<'a>(&self, rays: &'a RayTable) -> DeviceRig<'a> {
-        let projector = Projector::from_checked(self.projector_centre, &rays[..]);
+    fn rig<'a>(&self, rays: &'a Rays) -> DeviceRig<'a> {
+        let projector = Projector::from_checked(self.projector_centre, rays);
         Rig::from_centred(
             self.grid,
             self.inner,
@@ -109,7 +122,7 @@ impl Active {
     /// identification).
     fn build_identifier(
         &self,
-        rays: &RayTable,
+        rays: &Rays,
         identifier: &mut DeviceIdentifier,
     ) -> Result<(), ErrorCode> {
         let Some(p) = self.identification else {
@@ -144,7 +157,7 @@ pub struct Device<F, P> {
     active: Option<Active>,
     /// The active calibration's rays, filled in place (the table is large; moving it costs
     /// stack).
-    rays: RayTable,
+    rays: Rays,
     identifier: DeviceIdentifier,
     upload: Option<Upload>,
     /// Why the stored calibration failed to load at the last boot (or reload), if it did.
@@ -166,8 +179,9 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             addr_of_mut!((*me).store).write(store);
             addr_of_mut!((*me).probe).write(probe);
             addr_of_mut!((*me).active).write(None);
-            // An empty heapless::Vec: its buffer stays uninitialised, nothing is copied.
-            addr_of_mut!((*me).rays).write(RayTable::new());
+            // An empty table, zeroed in place (zero bytes are a valid empty table: no rays,
+            // a model of plain integers and flags).
+            addr_of_mut!((*me).rays).write_bytes(0, 1);
             DeviceIdentifier::empty_in(&mut *addr_of_mut!((*me).identifier).cast());
             addr_of_mut!((*me).upload).write(None);
             addr_of_mut!((*me).boot_error).write(None);
@@ -284,6 +298,7 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
             max_calibration: self.max_calibration() as u32,
             calibration: self.active.as_ref().map(|a| a.summary),
             boot_error: self.boot_error,
+            clock: self.probe.clock(),
         }
     }
 
@@ -394,8 +409,9 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         out.finish().map_err(ErrorCode::Frame)
     }
 
-    /// Identify unlabelled dots (the whole batch is one camera frame, so two dots claiming one
-    /// ray are both conflicts), then compute the identified ones into the response in `tx`.
+    /// Identify unlabelled dots, each by itself, and compute the identified ones into the
+    /// response in `tx` as they go (no per-dot table: two dots of one frame claiming one ray are
+    /// the host's to find, over the whole frame however many requests carry it).
     fn identify(
         &mut self,
         seq: u32,
@@ -409,19 +425,14 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
         let bits = active.summary.centroid_bits;
         let start = self.probe.now();
         let rig = active.rig(&self.rays);
-        let mut found = [Assignment::Unassigned; MAX_BATCH];
-        let found = found
-            .get_mut(..dots.len())
-            .ok_or(ErrorCode::Frame(WireError::Malformed))?;
-        self.identifier
-            .identify_each(dots.iter().map(|d| d.pixel::<f32>(bits)), found);
         let mut out = FrameWriter::streamed(tx, seq, tag::IDENTIFIED);
         out.put(&active.summary.fingerprint)
             .and_then(|()| out.put(&(dots.len() as u32)))
             .map_err(ErrorCode::Frame)?;
         let mut cursor = RayCursor::default();
-        for (dot, assignment) in dots.iter().zip(found.iter()) {
-            let (id, result) = match *assignment {
+        for dot in dots.iter() {
+            let (col, row) = dot.pixel::<f32>(bits);
+            let (id, result) = match self.identifier.identify(col, row) {
                 Assignment::Ray { id, .. } => (id, active.point(&rig, &mut cursor, id, dot)),
                 Assignment::Ambiguous { first, .. } => {
                     (first, PointResult::Failed(PointStatus::Ambiguous))
@@ -444,22 +455,21 @@ impl<F: NorFlash, P: Probe> Device<F, P> {
 
     /// Load the calibration in store slot `slot` (`len` bytes) into the ray table, checked by
     /// [`Rig::validate`] (every number finite, f and the pixel size positive, a sensor of at
-    /// least one pixel, 1 to [`MAX_RAYS`] rays sorted with unit directions), and build its
-    /// identifier. Its generation is left 0.
+    /// least one pixel, 1 to [`Rays::capacity`] rays sorted by id), and build its identifier.
+    /// Its generation is left 0.
     fn activate(&mut self, slot: usize, len: usize) -> Result<Active, ErrorCode> {
         let rays = &mut self.rays;
         let store = &mut self.store;
-        rays.clear();
+        let mut first = true;
+        rays.clear(rays.model());
         let header = decode_calibration_from(
             len,
             |offset, out| store.read(slot, offset, out),
-            |r: WireRay| {
-                let ray = ProjectorRay {
-                    id: r.id,
-                    direction: Vector3::from(r.direction),
-                    offset: r.offset.map_or(Vector3::zeros(), Vector3::from),
-                };
-                rays.push(ray).is_ok()
+            |header, record| {
+                if core::mem::take(&mut first) {
+                    rays.clear(header.model);
+                }
+                rays.push(record)
             },
         )
         .map_err(|_| ErrorCode::InvalidCalibration)?;
@@ -496,7 +506,7 @@ fn storage(e: StoreError) -> ErrorCode {
 
 /// The active calibration of a decoded header over its rays, if [`Rig::validate`] and the
 /// identification parameters pass.
-fn checked(header: CalibrationHeader, rays: &RayTable) -> Option<Active> {
+fn checked(header: CalibrationHeader, rays: &Rays) -> Option<Active> {
     let CalibrationHeader {
         fingerprint,
         method,
@@ -506,22 +516,28 @@ fn checked(header: CalibrationHeader, rays: &RayTable) -> Option<Active> {
         camera_centre,
         projector_centre,
         identification,
+        model: header_model,
+        rays: header_rays,
         ..
     } = header;
+    let header_rays = usize::from(header_rays);
     let params = identification.map_or([0.0; 4], |p| [p.near, p.far, p.tolerance, p.cell]);
     let finite =
         params.into_iter().all(f32::is_finite) && camera_centre.iter().all(|c| c.is_finite());
     let projector_centre = Vector3::from(projector_centre);
     let r_cam_world = Matrix3::from_row_slice(&r_cam_world);
-    let projector = Projector::new(projector_centre, &rays[..]).ok()?;
+    // The rays were checked as they were taken (sorted by id; integers: finite), and a table
+    // of another model than the header's holds none of them.
+    let projector = Projector::from_checked(projector_centre, rays);
     let rig = Rig::from_centred(grid, inner, r_cam_world, Vector3::zeros(), projector);
-    if !finite || rig.validate().is_err() {
+    let count = deltaz_shared::projector::RayStore::count(&rays);
+    if !finite || rig.validate().is_err() || rays.model() != header_model || count != header_rays {
         return None;
     }
     let summary = CalibrationSummary {
         fingerprint,
         generation: 0,
-        rays: rays.len() as u16,
+        rays: count as u16,
         centroid_bits: centroid_fraction_bits(grid.width, grid.height),
         camera_centre,
     };

@@ -8,6 +8,7 @@
 
 use crate::device::Probe;
 use cortex_m::peripheral::{syst::SystClkSource, SYST};
+use deltaz_shared::protocol::BoardClock;
 
 /// The counter's range: 24 bits.
 const MASK: u32 = 0x00FF_FFFF;
@@ -23,15 +24,17 @@ extern "C" {
     static _stack_start: u32;
 }
 
-/// SysTick and the stack gauge.
+/// SysTick, the stack gauge and the board's clock.
 pub struct CortexProbe {
     _syst: SYST,
+    clock: BoardClock,
 }
 
 impl CortexProbe {
     /// Start SysTick counting and paint the free stack. Call it early in `main`, before the big
-    /// work: what lies below the caller's frame is free then.
-    pub fn start(mut syst: SYST) -> Self {
+    /// work: what lies below the caller's frame is free then. `clock` is the core clock the
+    /// board set up (SysTick counts it).
+    pub fn start(mut syst: SYST, clock: BoardClock) -> Self {
         syst.set_clock_source(SystClkSource::Core);
         syst.set_reload(MASK);
         syst.clear_current();
@@ -45,7 +48,7 @@ impl CortexProbe {
             unsafe { core::ptr::write_volatile(word as *mut u32, PAINT) };
             word += 4;
         }
-        Self { _syst: syst }
+        Self { _syst: syst, clock }
     }
 }
 
@@ -68,5 +71,9 @@ impl Probe for CortexProbe {
             word += 4;
         }
         (top - word) as u32
+    }
+
+    fn clock(&self) -> Option<BoardClock> {
+        Some(self.clock)
     }
 }

@@ -126,11 +126,15 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
 
     /// Serve the bytes a board's RX interrupt queues in `ring`, answering on `tx`, until a
     /// `Reset` was answered (the board then restarts) or the port fails. `idle` runs whenever
-    /// the ring is empty: the board sleeps until the next interrupt (and feeds its watchdog).
+    /// the ring is empty: the board sleeps until the next interrupt (and, waiting for the
+    /// host, feeds its watchdog). `progress` runs after every frame answered: a board feeds its
+    /// watchdog there, so a stream that never lets the ring run empty keeps it fed, while a
+    /// loop that stops answering (a stall) lets it bite.
     pub fn serve<const N: usize, W: Write>(
         &mut self,
         ring: &RxRing<N>,
         mut idle: impl FnMut(),
+        mut progress: impl FnMut(),
         tx: &mut W,
     ) -> Result<(), W::Error> {
         loop {
@@ -141,6 +145,7 @@ impl<F: NorFlash, P: Probe> Server<F, P> {
                     // The next frame may be complete once this one is answered: answer it too.
                     let complete = self.answer_receiving(ring, tx)?;
                     tx.flush()?;
+                    progress();
                     if self.device.reset_requested() {
                         return Ok(());
                     }
@@ -279,7 +284,7 @@ mod tests {
         let mut later = [later].into_iter();
         let mut out = Line(Vec::new());
         let idle = || later.next().unwrap().iter().for_each(|&b| ring.push(b));
-        let Ok(()) = server().serve(ring, idle, &mut out);
+        let Ok(()) = server().serve(ring, idle, || {}, &mut out);
         out.0
             .split_mut(|&b| b == 0)
             .filter(|f| !f.is_empty())

@@ -16,7 +16,7 @@
 //!
 //! | step | operation | if the power fails here |
 //! |---|---|---|
-//! | 1 | erase the slot | the other slot still holds the newest |
+//! | 1 | erase the slot, check it reads back erased | the other slot still holds the newest |
 //! | 2 | write the blob after the header | header still erased: slot invalid |
 //! | 3 | read back and check the CRC | — |
 //! | 4 | write the header | header CRC or blob CRC fails: slot invalid |
@@ -194,6 +194,20 @@ impl<F: NorFlash> Store<F> {
         };
         let (start, end) = self.range(slot);
         self.flash.erase(start, end)?;
+        // What the save will write must read back erased: a flash whose erase does not take
+        // (or an emulator without a flash interface) refuses the upload here, at its start.
+        let written = (HEADER + len).div_ceil(F::WRITE_SIZE) * F::WRITE_SIZE;
+        let mut piece = [0u8; PIECE];
+        let mut at = 0;
+        while at < written {
+            let n = (written - at).min(PIECE);
+            let bytes = piece.get_mut(..n).unwrap_or_default();
+            self.flash.read(start + at as u32, bytes)?;
+            if bytes.iter().any(|&b| b != 0xFF) {
+                return Err(StoreError::Verify);
+            }
+            at += n;
+        }
         Ok(Pending {
             slot,
             generation: newest.map_or(1, |s| s.generation.wrapping_add(1)),

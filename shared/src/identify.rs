@@ -6,12 +6,17 @@
 //! segment passes within the tolerance; if two segments do, the dot is *ambiguous*, if none does it
 //! is *unassigned*, and if two dots claim one ray both are *conflicts*: nothing is guessed.
 //!
-//! The segments bend slightly with lens distortion, so each is kept as a polyline of
-//! [`SUBSEGMENTS`] pieces. A lookup grid over the image, built once when the calibration is
-//! loaded, lists for every cell the rays whose segment passes within tolerance + half a cell
-//! diagonal of its centre; a dot is then compared only with its own cell's few candidates.
-//! Everything lives in fixed-capacity arrays (no allocator): `R` rays, `C` grid cells and `E`
-//! cell entries in all.
+//! Lens distortion bends the segments in the observed image, but not in the *refined* one (the
+//! image eq. (1) predicts, distortion and principal point removed: [`crate::camera`]): the
+//! pinhole image of a line is a line. So each dot is refined once, and each segment is kept as
+//! its two ends in refined pixel positions (the refined photo coordinates on the sensor's
+//! raster), 8 bytes in i16 fixed point. A lookup grid over the refined image, built once when
+//! the calibration is loaded, lists for every cell the rays whose segment passes within the
+//! tolerance of it; a dot is then compared only with its own cell's few candidates. Everything
+//! lives in fixed-capacity arrays (no allocator): `R` rays, `C` grid cells and `E` cell entries
+//! in all. When the requested cell size needs more cells or entries than that, the grid's cells
+//! grow (by a quarter at a time) until it fits: a longer depth range costs comparisons per dot,
+//! not a refusal ([`Identifier::cell`] gives the size used).
 //!
 //! # What the pattern and the geometry must give
 //! Two rays whose segments come within twice the tolerance of each other cannot be told apart
@@ -23,7 +28,11 @@
 //! 160 mm, see the host's identification tests); [`Identifier::close_pairs`] counts the pairs of
 //! rays that come too close, to check a design.
 
-use crate::projector::ProjectorRay;
+use crate::camera::{InnerOrientation, PixelGrid};
+use crate::collinearity::project_camera_point;
+use crate::epipolar::segments_distance;
+pub use crate::epipolar::EpipolarSegment;
+use crate::projector::{ProjectorRay, RayStore};
 use crate::rig::Rig;
 use crate::{lit, sqrt, Error};
 use core::mem::MaybeUninit;
@@ -31,8 +40,8 @@ use core::ptr::addr_of_mut;
 use nalgebra::{RealField, Vector2};
 use simba::scalar::SupersetOf;
 
-/// Pieces of each epipolar polyline.
-pub const SUBSEGMENTS: usize = 4;
+/// How much a grid cell grows per try when the grid does not fit its capacities (5/4).
+const GROWTH: f32 = 1.25;
 
 /// The working depth range: distances from the camera's perspective centre along its viewing
 /// axis (mm), near < far.
@@ -50,10 +59,8 @@ pub struct DepthRange<T> {
 pub enum IdentifyError {
     /// The projector has more rays than the identifier's capacity `R`.
     TooManyRays,
-    /// The image needs more grid cells than the capacity `C` (use larger cells).
-    TooManyCells,
-    /// The segments fill more cell entries than the capacity `E` (use smaller cells or a
-    /// smaller tolerance or depth range).
+    /// The segments fill more cell entries than the capacity `E` even in one cell as large as
+    /// the image (`E` is below the number of rays).
     TooManyEntries,
     /// The depth range is not near < far with near > 0, or the tolerance or cell size is not
     /// positive.
@@ -67,9 +74,6 @@ impl core::fmt::Display for IdentifyError {
         match self {
             IdentifyError::TooManyRays => {
                 f.write_str("more projector rays than the identifier holds")
-            }
-            IdentifyError::TooManyCells => {
-                f.write_str("the lookup grid needs more cells than it holds")
             }
             IdentifyError::TooManyEntries => f.write_str(
                 "the epipolar segments need more grid entries than the identifier holds",
@@ -118,62 +122,14 @@ impl<T> Assignment<T> {
     }
 }
 
-/// One ray's epipolar polyline in pixels.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EpipolarSegment<T: RealField> {
-    /// The ray id.
-    pub id: u16,
-    /// Polyline vertices (col, row), near to far.
-    pub points: [Vector2<T>; SUBSEGMENTS + 1],
-}
+/// An epipolar segment as the identifier keeps it: (col, row) of its two ends in i16 fixed point
+/// (8 bytes instead of 16 in f32).
+type Polyline = [[i16; 2]; 2];
 
-impl<T: RealField + Copy> EpipolarSegment<T> {
-    /// Distance (pixels) from a point to the polyline.
-    pub fn distance(&self, p: Vector2<T>) -> T {
-        sqrt(self.distance_squared(p))
-    }
-
-    /// The square of [`Self::distance`] (no square root: a search compares squares).
-    fn distance_squared(&self, p: Vector2<T>) -> T {
-        let mut best = T::max_value().unwrap_or_else(|| lit(f64::MAX));
-        for pair in self.points.windows(2) {
-            // A comparison, not `min` (a call to libm's `fminf` on the device); NaN is skipped
-            // as `min` skips it.
-            let d = point_segment_distance_squared(p, pair[0], pair[1]);
-            if d < best {
-                best = d;
-            }
-        }
-        best
-    }
-}
-
-fn point_segment_distance<T: RealField + Copy>(p: Vector2<T>, a: Vector2<T>, b: Vector2<T>) -> T {
-    sqrt(point_segment_distance_squared(p, a, b))
-}
-
-fn point_segment_distance_squared<T: RealField + Copy>(
-    p: Vector2<T>,
-    a: Vector2<T>,
-    b: Vector2<T>,
-) -> T {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    let t = if len2 > T::zero() {
-        ((p - a).dot(&ab) / len2).clamp(T::zero(), T::one())
-    } else {
-        T::zero()
-    };
-    (a + ab * t - p).norm_squared()
-}
-
-/// An epipolar polyline as the identifier keeps it: (col, row) of each vertex in i16 fixed point
-/// (20 bytes instead of 40 in f32).
-type Polyline = [[i16; 2]; SUBSEGMENTS + 1];
-
-/// The fixed-point step of the polylines for a sensor `extent` pixels wide (its larger side):
-/// 1/16 pixel while ±2 extents fit the i16 range (up to 1023 pixels), coarser above. Rounding
-/// moves a vertex by at most half a step (1/32 pixel per axis), a few per cent of a tolerance.
+/// The fixed-point step of the segments for a sensor `extent` pixels wide (its larger side):
+/// 1/16 pixel while ±2 extents fit the i16 range (up to 1023 pixels), 1/8 up to 2047 pixels,
+/// coarser above. Rounding moves an end by at most half a step (1/32 or 1/16 pixel per axis), a
+/// few per cent of a tolerance.
 fn fixed_point_unit<T: RealField + Copy + SupersetOf<f32>>(extent: u32) -> T {
     let mut bits = 4;
     while bits > 0 && (2 * u64::from(extent)) << bits > i16::MAX as u64 {
@@ -186,15 +142,20 @@ fn fixed_point_unit<T: RealField + Copy + SupersetOf<f32>>(extent: u32) -> T {
 /// `E` cell entries.
 #[derive(Debug, Clone)]
 pub struct Identifier<T: RealField, const R: usize, const C: usize, const E: usize> {
-    /// Each ray's epipolar polyline in i16 fixed point of `unit` pixels (see [`Polyline`]).
+    /// Each ray's epipolar segment in i16 fixed point of `unit` pixels (see [`Polyline`]).
     polylines: [Polyline; R],
     /// The rays' ids, in the projector's order.
     ids: [u16; R],
     /// Pixels per fixed-point step of `polylines`.
     unit: T,
     rays: usize,
+    /// The raster and inner orientation that refine a dot.
+    grid: PixelGrid<T>,
+    inner: InnerOrientation<T>,
     tolerance: T,
     cell: T,
+    /// The refined pixel position of the grid's first cell's corner.
+    origin: Vector2<T>,
     grid_cols: usize,
     grid_rows: usize,
     /// Where each cell's entries start in `entries` (they end where the next cell's start).
@@ -209,7 +170,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
     /// Build the segments of every ray of `rig` over `depth`, and the lookup grid of square
     /// cells of side `cell` pixels. `tolerance` (pixels) is the largest distance of a dot from
     /// its ray's segment: a few σ of the centroid noise plus the calibration's image error.
-    pub fn new<S: AsRef<[ProjectorRay<T>]>>(
+    pub fn new<S: RayStore<T>>(
         rig: &Rig<T, S>,
         depth: DepthRange<T>,
         tolerance: T,
@@ -243,8 +204,17 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
             addr_of_mut!((*me).ids).write_bytes(0, 1);
             addr_of_mut!((*me).unit).write(T::one());
             addr_of_mut!((*me).rays).write(0);
+            addr_of_mut!((*me).grid).write(PixelGrid {
+                pixel_size: T::one(),
+                width: 0,
+                height: 0,
+                origin_col: T::zero(),
+                origin_row: T::zero(),
+            });
+            addr_of_mut!((*me).inner).write(InnerOrientation::ideal(T::one()));
             addr_of_mut!((*me).tolerance).write(T::one());
             addr_of_mut!((*me).cell).write(T::one());
+            addr_of_mut!((*me).origin).write(Vector2::zeros());
             addr_of_mut!((*me).grid_cols).write(0);
             addr_of_mut!((*me).grid_rows).write(0);
             addr_of_mut!((*me).starts).cast::<u16>().write_bytes(0, C);
@@ -256,7 +226,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
 
     /// [`Self::new`] in place, for a device that keeps its identifier where it lives instead of
     /// moving the whole table. On failure the identifier is left empty.
-    pub fn rebuild<S: AsRef<[ProjectorRay<T>]>>(
+    pub fn rebuild<S: RayStore<T>>(
         &mut self,
         rig: &Rig<T, S>,
         depth: DepthRange<T>,
@@ -278,15 +248,15 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         self.grid_rows = 0;
     }
 
-    fn fill<S: AsRef<[ProjectorRay<T>]>>(
+    fn fill<S: RayStore<T>>(
         &mut self,
         rig: &Rig<T, S>,
         depth: DepthRange<T>,
         tolerance: T,
         cell: T,
     ) -> Result<(), IdentifyError> {
-        let rays = rig.projector_centred().rays();
-        if rays.len() > R {
+        let store = rig.projector_centred().store();
+        if store.count() > R {
             return Err(IdentifyError::TooManyRays);
         }
         let valid = depth.near > T::zero()
@@ -296,48 +266,62 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         if !valid {
             return Err(IdentifyError::InvalidParameters);
         }
-        let grid = rig.grid();
-        let grid_cols = cells_along(grid.width, cell);
-        let grid_rows = cells_along(grid.height, cell);
-        if grid_cols * grid_rows > C {
-            return Err(IdentifyError::TooManyCells);
-        }
-        self.rays = rays.len();
+        let grid = *rig.grid();
+        self.grid = grid;
+        self.inner = *rig.inner();
         self.tolerance = tolerance;
-        self.cell = cell;
-        self.grid_cols = grid_cols;
-        self.grid_rows = grid_rows;
-        self.starts.fill(0);
         let unit = fixed_point_unit(grid.width.max(grid.height));
         self.unit = unit;
         let slots = self.polylines.iter_mut().zip(self.ids.iter_mut());
-        for (ray, (line, id)) in rays.iter().zip(slots) {
-            let segment = epipolar_segment(rig, ray, depth)
+        let mut rays = 0;
+        for (k, (line, id)) in (0..store.count()).zip(slots) {
+            let ray = store
+                .ray_at(k)
+                .ok_or(IdentifyError::Geometry(0, Error::InvalidCalibration))?;
+            let segment = epipolar_segment(rig, &ray, depth)
                 .map_err(|e| IdentifyError::Geometry(ray.id, e))?;
             *line = segment.points.map(|p| [p.x, p.y].map(|v| fixed(v, unit)));
             *id = ray.id;
+            rays += 1;
         }
-        // Two passes over the cells each segment touches: count, then fill (each cell's slots
-        // from its end down, the rays in reverse: every cell lists its rays in order). Cells
-        // are below C and entries below E (checked), so the `get`s always find theirs.
-        for k in 0..self.rays {
-            if let Some(segment) = self.segment(k) {
-                self.for_each_cell(&segment, |me, cell| {
-                    if let Some(start) = me.starts.get_mut(cell) {
-                        *start += 1;
+        self.rays = rays;
+        // The refined image of the sensor (its corners and edge middles, a pixel around).
+        // (In f32 constants: no f64 arithmetic on the device.)
+        let f = nalgebra::convert::<f32, T>;
+        let (mut lo, mut hi) = (Vector2::repeat(f(1e30)), Vector2::repeat(f(-1e30)));
+        let (w, h) = (f(grid.width as f32), f(grid.height as f32));
+        for (c, r) in [(0.0, 0.0), (0.5, 0.0), (1.0, 0.0), (0.0, 0.5)]
+            .into_iter()
+            .chain([(1.0, 0.5), (0.0, 1.0), (0.5, 1.0), (1.0, 1.0)])
+        {
+            let p = self.refined(w * f(c) - f(0.5), h * f(r) - f(0.5));
+            lo = lo.inf(&p);
+            hi = hi.sup(&p);
+        }
+        self.origin = lo - Vector2::repeat(T::one());
+        let extent = hi - self.origin + Vector2::repeat(T::one());
+        // The cells grow until the grid fits: cells, then entries.
+        let largest = extent.x.max(extent.y);
+        let mut side = cell;
+        loop {
+            self.cell = side;
+            self.grid_cols = cells_along(extent.x, side);
+            self.grid_rows = cells_along(extent.y, side);
+            if self.grid_cols * self.grid_rows <= C {
+                match self.count_entries() {
+                    Some(total) => {
+                        self.total = total as u16;
+                        break;
                     }
-                });
+                    None if side > largest => return Err(IdentifyError::TooManyEntries),
+                    None => {}
+                }
             }
+            side *= nalgebra::convert::<f32, T>(GROWTH);
         }
-        let mut total = 0usize;
-        for start in self.starts.iter_mut().take(grid_cols * grid_rows) {
-            total += usize::from(*start);
-            if total > E {
-                return Err(IdentifyError::TooManyEntries);
-            }
-            *start = total as u16;
-        }
-        self.total = total as u16;
+        // Each cell's slots from its end down, the rays in reverse: every cell lists its rays
+        // in order. Cells are below C and entries below E (counted), so the `get`s always find
+        // theirs.
         for k in (0..self.rays).rev() {
             if let Some(segment) = self.segment(k) {
                 self.for_each_cell(&segment, |me, cell| {
@@ -353,44 +337,73 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         Ok(())
     }
 
-    /// Visit every grid cell whose centre lies within tolerance + half a cell diagonal of the
-    /// segment.
+    /// Count the entries of the current grid: each cell's start set to the end of its entries.
+    /// `None` (the starts left spoilt) when they exceed `E`.
+    fn count_entries(&mut self) -> Option<usize> {
+        self.starts.fill(0);
+        for k in 0..self.rays {
+            if let Some(segment) = self.segment(k) {
+                self.for_each_cell(&segment, |me, cell| {
+                    if let Some(start) = me.starts.get_mut(cell) {
+                        *start = start.saturating_add(1);
+                    }
+                });
+            }
+        }
+        let mut total = 0usize;
+        for start in self.starts.iter_mut().take(self.grid_cols * self.grid_rows) {
+            total += usize::from(*start);
+            if total > E {
+                return None;
+            }
+            *start = total as u16;
+        }
+        Some(total)
+    }
+
+    /// The side (pixels) of the grid's cells: the requested one, or larger when the grid would
+    /// not fit its capacities with it.
+    pub fn cell(&self) -> T {
+        self.cell
+    }
+
+    /// A dot's refined pixel position (see the module docs).
+    fn refined(&self, col: T, row: T) -> Vector2<T> {
+        let (c, r) = self
+            .grid
+            .photo_to_pixel(self.inner.refine(self.grid.pixel_to_photo(col, row)));
+        Vector2::new(c, r)
+    }
+
+    /// Visit every grid cell the segment passes within the tolerance of.
     fn for_each_cell(
         &mut self,
         segment: &EpipolarSegment<T>,
         mut visit: impl FnMut(&mut Self, usize),
     ) {
-        let half = lit::<T>(0.5);
-        let reach = self.tolerance + self.cell * lit::<T>(core::f64::consts::FRAC_1_SQRT_2);
-        let (mut lo, mut hi) = (segment.points[0], segment.points[0]);
-        for p in &segment.points[1..] {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        let Some((c0, r0)) = self.cell_of_clamped(lo - Vector2::repeat(reach)) else {
+        let reach = self.tolerance;
+        let [a, b] = segment.points;
+        let Some((c0, r0)) = self.cell_of_clamped(a.inf(&b) - Vector2::repeat(reach)) else {
             return;
         };
-        let Some((c1, r1)) = self.cell_of_clamped(hi + Vector2::repeat(reach)) else {
+        let Some((c1, r1)) = self.cell_of_clamped(a.sup(&b) + Vector2::repeat(reach)) else {
             return;
         };
         for r in r0..=r1 {
             for c in c0..=c1 {
-                let centre = Vector2::new(
-                    (lit::<T>(c as f64) + half) * self.cell - half,
-                    (lit::<T>(r as f64) + half) * self.cell - half,
-                );
-                if segment.distance(centre) <= reach {
+                let corner =
+                    self.origin + Vector2::new(lit::<T>(c as f64), lit::<T>(r as f64)) * self.cell;
+                if segment.meets(corner, self.cell, reach) {
                     visit(self, r * self.grid_cols + c);
                 }
             }
         }
     }
 
-    /// The grid cell of a pixel position, clamped to the grid; `None` if not finite.
+    /// The grid cell of a refined position, clamped to the grid; `None` if not finite.
     fn cell_of_clamped(&self, p: Vector2<T>) -> Option<(usize, usize)> {
-        let half = lit::<T>(0.5);
-        let c = ((p.x + half) / self.cell).floor();
-        let r = ((p.y + half) / self.cell).floor();
+        let q = (p - self.origin) / self.cell;
+        let (c, r) = (q.x.floor(), q.y.floor());
         if !(c.is_finite() && r.is_finite()) {
             return None;
         }
@@ -402,23 +415,23 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         Some((clamp(c, self.grid_cols), clamp(r, self.grid_rows)))
     }
 
-    /// The grid cell of a dot, `None` outside the grid.
+    /// The grid cell of a refined dot position, `None` outside the grid.
     fn cell_of(&self, p: Vector2<T>) -> Option<usize> {
-        let half = lit::<T>(0.5);
-        let inside = p.x >= -half
-            && p.y >= -half
-            && p.x < lit::<T>(self.grid_cols as f64) * self.cell - half
-            && p.y < lit::<T>(self.grid_rows as f64) * self.cell - half;
+        let q = (p - self.origin) / self.cell;
+        let inside = q.x >= T::zero()
+            && q.y >= T::zero()
+            && q.x < lit::<T>(self.grid_cols as f64)
+            && q.y < lit::<T>(self.grid_rows as f64);
         if !inside {
             return None;
         }
-        // (v + ½) / cell ≥ 0 here, so truncation is the floor (no `floorf`, `fminf`, `fmaxf`
-        // calls on the device); the far edge can round up to n.
-        let index = |v: T, n: usize| small_index((v + half) / self.cell).min(n - 1);
-        Some(index(p.y, self.grid_rows) * self.grid_cols + index(p.x, self.grid_cols))
+        // q ≥ 0 here, so truncation is the floor (no `floorf`, `fminf`, `fmaxf` calls on the
+        // device); the far edge can round up to n.
+        let index = |v: T, n: usize| small_index(v).min(n - 1);
+        Some(index(q.y, self.grid_rows) * self.grid_cols + index(q.x, self.grid_cols))
     }
 
-    /// The epipolar segments, in the projector's ray order (as stored: vertices in fixed point).
+    /// The epipolar segments, in the projector's ray order (as stored: ends in fixed point).
     pub fn segments(&self) -> impl Iterator<Item = EpipolarSegment<T>> + '_ {
         (0..self.rays).filter_map(|k| self.segment(k))
     }
@@ -454,10 +467,11 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
 
     /// The assignment of one dot at pixel (col, row), by itself (see [`Self::identify_frame`]).
     pub fn identify(&self, col: T, row: T) -> Assignment<T> {
-        self.nearest(Vector2::new(col, row)).0
+        self.nearest(self.refined(col, row)).0
     }
 
-    /// Like [`Self::identify`], with the ray's index in [`Self::segments`].
+    /// Like [`Self::identify`] of a refined position, with the ray's index in
+    /// [`Self::segments`].
     fn nearest(&self, p: Vector2<T>) -> (Assignment<T>, usize) {
         let Some(cell) = self.cell_of(p) else {
             return (Assignment::Unassigned, 0);
@@ -520,7 +534,7 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
         let mut claims = [0u8; R];
         let mut n = 0;
         for (dot, slot) in dots.into_iter().zip(out.iter_mut()) {
-            let (assignment, k) = self.nearest(Vector2::new(dot.0, dot.1));
+            let (assignment, k) = self.nearest(self.refined(dot.0, dot.1));
             if let (Assignment::Ray { .. }, Some(claim)) = (assignment, claims.get_mut(k)) {
                 *claim = claim.saturating_add(1);
             }
@@ -559,9 +573,11 @@ impl<T: RealField + Copy + SupersetOf<f32>, const R: usize, const C: usize, cons
     }
 }
 
-/// Cells of side `cell` covering `n` pixels.
-fn cells_along<T: RealField + Copy + SupersetOf<f32>>(n: u32, cell: T) -> usize {
-    let cells = (lit::<T>(f64::from(n)) / cell).ceil();
+/// Cells of side `cell` covering `extent` pixels (at most 2¹⁶: the cell counts fit u16 starts).
+fn cells_along<T: RealField + Copy + SupersetOf<f32>>(extent: T, cell: T) -> usize {
+    let cells = (extent / cell)
+        .ceil()
+        .min(nalgebra::convert::<f32, T>(65536.0));
     small_index(cells).max(1)
 }
 
@@ -578,266 +594,20 @@ fn small_index<T: SupersetOf<f32>>(v: T) -> usize {
     nalgebra::try_convert::<T, f32>(v).map_or(0, |v| v as usize)
 }
 
-/// The smallest distance between two polylines (segments that do not cross: the smallest
-/// vertex-to-piece distance; crossing pieces: zero).
-fn segments_distance<T: RealField + Copy>(a: &EpipolarSegment<T>, b: &EpipolarSegment<T>) -> T {
-    let mut best = T::max_value().unwrap_or_else(|| lit(f64::MAX));
-    for pa in a.points.windows(2) {
-        for pb in b.points.windows(2) {
-            if pieces_cross(pa[0], pa[1], pb[0], pb[1]) {
-                return T::zero();
-            }
-            best = best
-                .min(point_segment_distance(pa[0], pb[0], pb[1]))
-                .min(point_segment_distance(pa[1], pb[0], pb[1]))
-                .min(point_segment_distance(pb[0], pa[0], pa[1]))
-                .min(point_segment_distance(pb[1], pa[0], pa[1]));
-        }
-    }
-    best
-}
-
-fn pieces_cross<T: RealField + Copy>(
-    a0: Vector2<T>,
-    a1: Vector2<T>,
-    b0: Vector2<T>,
-    b1: Vector2<T>,
-) -> bool {
-    let cross = |o: Vector2<T>, p: Vector2<T>, q: Vector2<T>| (p - o).perp(&(q - o));
-    let (d1, d2) = (cross(b0, b1, a0), cross(b0, b1, a1));
-    let (d3, d4) = (cross(a0, a1, b0), cross(a0, a1, b1));
-    d1 * d2 < T::zero() && d3 * d4 < T::zero()
-}
-
-/// The epipolar polyline of one ray: the camera images of its points at [`SUBSEGMENTS`] + 1
-/// depths evenly spaced over the range ([`Rig::pixel_at_depth`]).
-fn epipolar_segment<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>>(
+/// The epipolar segment of one ray: the refined pixel positions of its points at the near and
+/// the far depth ([`Rig::point_at_depth`], then eq. (1) without distortion).
+fn epipolar_segment<T: RealField + Copy, S: RayStore<T>>(
     rig: &Rig<T, S>,
     ray: &ProjectorRay<T>,
     depth: DepthRange<T>,
 ) -> Result<EpipolarSegment<T>, Error> {
-    let mut points = [Vector2::zeros(); SUBSEGMENTS + 1];
-    for (k, out) in points.iter_mut().enumerate() {
-        let t = lit::<T>(k as f64 / SUBSEGMENTS as f64);
-        let (col, row) = rig.pixel_at_depth(ray.id, depth.near + (depth.far - depth.near) * t)?;
+    let mut points = [Vector2::zeros(); 2];
+    for (out, d) in points.iter_mut().zip([depth.near, depth.far]) {
+        let cam = rig.r_cam_world() * rig.point_at_depth(ray.id, d)?;
+        let (col, row) = rig
+            .grid()
+            .photo_to_pixel(project_camera_point(rig.inner().f, &cam)?);
         *out = Vector2::new(col, row);
     }
     Ok(EpipolarSegment { id: ray.id, points })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::collinearity::{Camera, ExteriorOrientation};
-    use crate::paper::{DC40_GRID, TABLE1_INNER, TABLE3_CAMERA};
-    use crate::projector::Projector;
-    use nalgebra::Vector3;
-
-    fn camera() -> Camera<f64> {
-        Camera {
-            grid: DC40_GRID,
-            inner: TABLE1_INNER,
-            exterior: ExteriorOrientation {
-                kappa: 0.0133,
-                phi: 0.0142,
-                omega: -0.026,
-                centre: Vector3::zeros(),
-            },
-        }
-    }
-
-    /// The projector of Table 3 (camera system); rays aimed at camera-system points at 1700 mm.
-    const PROJECTOR: [f64; 3] = TABLE3_CAMERA;
-
-    fn ray_at(id: u16, x: f64, y: f64) -> ProjectorRay<f64> {
-        let cam = camera();
-        let target = cam.exterior.camera_to_world(&Vector3::new(x, y, -1700.0));
-        ProjectorRay {
-            id,
-            direction: (target - Vector3::from(PROJECTOR)).normalize(),
-            offset: Vector3::zeros(),
-        }
-    }
-
-    fn rig(rays: &[ProjectorRay<f64>]) -> Rig<f64, &[ProjectorRay<f64>]> {
-        let cam = camera();
-        let projector = Projector::new(Vector3::from(PROJECTOR), rays).unwrap();
-        Rig::new(cam.grid, cam.inner, &cam.exterior, projector)
-    }
-
-    /// The pixel of ray `id` hitting a surface at camera distance `depth`.
-    fn dot(rays: &[ProjectorRay<f64>], id: u16, depth: f64) -> (f64, f64) {
-        rig(rays).pixel_at_depth(id, depth).unwrap()
-    }
-
-    const DEPTH: DepthRange<f64> = DepthRange {
-        near: 1550.0,
-        far: 1850.0,
-    };
-    type Small = Identifier<f64, 16, 1600, 4000>;
-
-    #[test]
-    fn identifies_within_range_only() {
-        let rays = [
-            ray_at(1, -200.0, 100.0),
-            ray_at(2, 0.0, -150.0),
-            ray_at(101, 250.0, 50.0),
-        ];
-        let ident = Small::new(&rig(&rays), DEPTH, 0.5, 16.0).unwrap();
-        assert!(ident.entries() > 3 && ident.close_pairs() == 0);
-        for id in [1, 2, 101] {
-            for depth in [1560.0, 1700.0, 1840.0] {
-                let (c, r) = dot(&rays, id, depth);
-                match ident.identify(c, r) {
-                    Assignment::Ray { id: got, distance } => {
-                        assert_eq!(got, id);
-                        // The polyline's chord error from distortion (< 0.02 px) and its fixed
-                        // point (half a 1/16-pixel step per axis: ≤ 0.045 px) stay far below
-                        // the tolerance.
-                        assert!(distance < 0.065, "{distance}");
-                    }
-                    other => panic!("ray {id} at {depth}: {other:?}"),
-                }
-            }
-            let (c, r) = dot(&rays, id, 1400.0);
-            assert_eq!(
-                ident.identify(c, r),
-                Assignment::Unassigned,
-                "outside the depth range"
-            );
-        }
-        assert_eq!(
-            ident.identify(-3.0, 10.0),
-            Assignment::Unassigned,
-            "outside the image"
-        );
-    }
-
-    /// Two rays in one epipolar plane whose segments overlap: a dot where they do is ambiguous,
-    /// never guessed, and `close_pairs` reports the pair.
-    #[test]
-    fn ambiguity_is_reported() {
-        let cam = camera();
-        let a = ray_at(5, 0.0, 0.0);
-        // Ray 6 hits, at 1750 mm, the camera ray of ray 5's point at 1650 mm: one pixel, two rays.
-        let (p, r) = (Vector3::from(PROJECTOR), cam.exterior.r_cam_world());
-        let on_a = p + a.direction * ((-1650.0 - (r * p).z) / (r * a.direction).z);
-        let b = ProjectorRay {
-            id: 6,
-            direction: (on_a * (1750.0 / 1650.0) - p).normalize(),
-            offset: Vector3::zeros(),
-        };
-        let rays = [a, b, ray_at(7, 300.0, 200.0)];
-        let ident = Small::new(&rig(&rays), DEPTH, 0.5, 16.0).unwrap();
-        let (c, row) = dot(&rays, 5, 1650.0);
-        assert_eq!(
-            ident.identify(c, row),
-            Assignment::Ambiguous {
-                first: 5,
-                second: 6
-            }
-        );
-        assert_eq!(ident.close_pairs(), 1);
-    }
-
-    /// Two dots claiming one ray are both conflicts; the others stay identified.
-    #[test]
-    fn conflicts_in_a_frame() {
-        let rays = [
-            ray_at(1, -200.0, 100.0),
-            ray_at(2, 0.0, -150.0),
-            ray_at(101, 250.0, 50.0),
-        ];
-        let ident = Small::new(&rig(&rays), DEPTH, 0.5, 16.0).unwrap();
-        let dots = [
-            dot(&rays, 2, 1600.0),
-            dot(&rays, 1, 1700.0),
-            dot(&rays, 2, 1640.0),
-            (700.0, 20.0),
-        ];
-        let mut out = [Assignment::Unassigned; 4];
-        assert_eq!(ident.identify_frame(&dots, &mut out), 1);
-        assert_eq!(out[0], Assignment::Conflict { id: 2 });
-        assert_eq!(out[1].id(), Some(1));
-        assert_eq!(out[2], Assignment::Conflict { id: 2 });
-        assert_eq!(out[3], Assignment::Unassigned);
-    }
-
-    #[test]
-    fn capacities_and_parameters() {
-        let rays = [
-            ray_at(1, -200.0, 100.0),
-            ray_at(2, 0.0, -150.0),
-            ray_at(101, 250.0, 50.0),
-        ];
-        let rig = rig(&rays);
-        assert_eq!(
-            Identifier::<f64, 2, 1600, 4000>::new(&rig, DEPTH, 0.5, 16.0).err(),
-            Some(IdentifyError::TooManyRays)
-        );
-        assert_eq!(
-            Identifier::<f64, 4, 100, 4000>::new(&rig, DEPTH, 0.5, 16.0).err(),
-            Some(IdentifyError::TooManyCells)
-        );
-        assert_eq!(
-            Identifier::<f64, 4, 1600, 5>::new(&rig, DEPTH, 0.5, 16.0).err(),
-            Some(IdentifyError::TooManyEntries)
-        );
-        let inverted = DepthRange {
-            near: 1850.0,
-            far: 1550.0,
-        };
-        assert_eq!(
-            Small::new(&rig, inverted, 0.5, 16.0).err(),
-            Some(IdentifyError::InvalidParameters)
-        );
-        // In place: a failed rebuild leaves no rays; a good one equals a new identifier.
-        let mut ident = Box::new(Small::new(&rig, DEPTH, 0.5, 16.0).unwrap());
-        let (c, r) = dot(&rays, 2, 1700.0);
-        assert_eq!(ident.identify(c, r).id(), Some(2));
-        assert_eq!(
-            ident.rebuild(&rig, inverted, 0.5, 16.0),
-            Err(IdentifyError::InvalidParameters)
-        );
-        assert_eq!((ident.segments().count(), ident.entries()), (0, 0));
-        assert_eq!(ident.identify(c, r), Assignment::Unassigned);
-        ident.rebuild(&rig, DEPTH, 0.5, 16.0).unwrap();
-        let fresh = Small::new(&rig, DEPTH, 0.5, 16.0).unwrap();
-        assert!(ident.segments().eq(fresh.segments()));
-        assert_eq!(ident.entries(), fresh.entries());
-        assert_eq!(ident.identify(c, r), fresh.identify(c, r));
-    }
-
-    /// The device's f32 identifier gives the host's f64 result.
-    #[test]
-    fn f32_matches_f64() {
-        let rays: [ProjectorRay<f64>; 3] = [
-            ray_at(1, -200.0, 100.0),
-            ray_at(2, 0.0, -150.0),
-            ray_at(101, 250.0, 50.0),
-        ];
-        let host = rig(&rays);
-        let ident64 = Small::new(&host, DEPTH, 0.5, 16.0).unwrap();
-        let c = |v: f64| v as f32;
-        let device: Rig<f32, Vec<ProjectorRay<f32>>> = host.cast().unwrap();
-        let ident32 = Identifier::<f32, 16, 1600, 4000>::new(
-            &device,
-            DepthRange {
-                near: 1550.0,
-                far: 1850.0,
-            },
-            0.5,
-            16.0,
-        )
-        .unwrap();
-        for id in [1, 2, 101] {
-            for depth in [1400.0, 1560.0, 1700.0, 1840.0] {
-                let (col, row) = dot(&rays, id, depth);
-                assert_eq!(
-                    ident32.identify(c(col), c(row)).id(),
-                    ident64.identify(col, row).id()
-                );
-            }
-        }
-    }
 }

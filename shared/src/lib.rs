@@ -8,9 +8,11 @@
 //! | [`camera`] | section 6.2.1 | pixel ↔ photo coordinates, image refinement (principal point, distortion) |
 //! | [`collinearity`] | eqs (1), (3), (4), (6), (7) | exterior orientation, projection, the camera ray |
 //! | [`projector`] | eq. (5) | the calibrated projector: a centre and a table of rays |
+//! | [`epipolar`] | eqs (1), (5) | a projector ray's image between two depths: a segment in the refined image |
 //! | [`identify`] | section 4 (open problem) | which projector ray made each detected dot (epipolar segments) |
 //! | [`intersection`] | eqs (8), (9) | λ, λp, and a least-squares closest approach |
 //! | [`paper`] | Tables 1-4 | the paper's published figures |
+//! | [`ray_table`] | eq. (5) | the device's packed rays: a model of the pattern and 24-bit slopes |
 //! | [`rig`] | section 2 | camera + projector: an image point and a ray id → a 3D point |
 //! | [`protocol`] | — | the host ↔ device wire protocol (messages, frames, calibration blob) |
 //!
@@ -32,11 +34,13 @@
 
 pub mod camera;
 pub mod collinearity;
+pub mod epipolar;
 pub mod identify;
 pub mod intersection;
 pub mod paper;
 pub mod projector;
 pub mod protocol;
+pub mod ray_table;
 pub mod rig;
 pub mod rotation;
 

@@ -45,8 +45,52 @@ pub struct RayCursor {
     next: usize,
 }
 
-/// The projector: a centre and rays sorted by id, in any storage (`[ProjectorRay; N]`, a slice,
-/// `heapless::Vec`, `Vec`): no allocator is needed.
+/// Where a projector keeps its rays, sorted by id: any slice-like storage of [`ProjectorRay`]s
+/// (`[ProjectorRay; N]`, a slice, `heapless::Vec`, `Vec`), or a packed table such as the
+/// device's [`crate::ray_table::RayTable`] that decodes a ray when asked.
+pub trait RayStore<T: RealField> {
+    /// The number of rays.
+    fn count(&self) -> usize;
+    /// The id of ray `k` (in id order), `None` beyond the last.
+    fn id_at(&self, k: usize) -> Option<u16>;
+    /// Ray `k`, `None` beyond the last.
+    fn ray_at(&self, k: usize) -> Option<ProjectorRay<T>>;
+    /// The index of the ray with id `id`, if there is one.
+    fn find(&self, id: u16) -> Option<usize> {
+        let (mut lo, mut hi) = (0, self.count());
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            match self.id_at(mid)?.cmp(&id) {
+                core::cmp::Ordering::Less => lo = mid + 1,
+                core::cmp::Ordering::Greater => hi = mid,
+                core::cmp::Ordering::Equal => return Some(mid),
+            }
+        }
+        None
+    }
+}
+
+impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> RayStore<T> for S {
+    fn count(&self) -> usize {
+        self.as_ref().len()
+    }
+
+    #[inline]
+    fn id_at(&self, k: usize) -> Option<u16> {
+        self.as_ref().get(k).map(|r| r.id)
+    }
+
+    #[inline]
+    fn ray_at(&self, k: usize) -> Option<ProjectorRay<T>> {
+        self.as_ref().get(k).copied()
+    }
+
+    fn find(&self, id: u16) -> Option<usize> {
+        self.as_ref().binary_search_by_key(&id, |r| r.id).ok()
+    }
+}
+
+/// The projector: a centre and rays sorted by id, in any [`RayStore`]: no allocator is needed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Projector<T: RealField, S> {
     centre: Vector3<T>,
@@ -79,6 +123,13 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
         Ok(Self { centre, rays })
     }
 
+    /// The rays, sorted by id.
+    pub fn rays(&self) -> &[ProjectorRay<T>] {
+        self.rays.as_ref()
+    }
+}
+
+impl<T: RealField + Copy, S: RayStore<T>> Projector<T, S> {
     /// A projector over rays a [`Projector::new`] accepted before (a device's table, checked
     /// once when its calibration was loaded), without a second pass over them.
     pub fn from_checked(centre: Vector3<T>, rays: S) -> Self {
@@ -90,11 +141,6 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
         self.centre
     }
 
-    /// The rays, sorted by id.
-    pub fn rays(&self) -> &[ProjectorRay<T>] {
-        self.rays.as_ref()
-    }
-
     /// Eq. (5)'s line for a ray id: through centre + offset with direction (l, m, n).
     pub fn ray(&self, id: u16) -> Result<Ray<T>> {
         self.ray_from(&mut RayCursor::default(), id)
@@ -104,19 +150,22 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Projector<T, S> {
     /// the cursor (the last one found) is tried before a binary search, and the cursor moves
     /// past the ray found. Any order gives the same rays, only slower.
     pub fn ray_from(&self, cursor: &mut RayCursor, id: u16) -> Result<Ray<T>> {
-        let rays = self.rays.as_ref();
-        let index = match rays.get(cursor.next) {
-            Some(next) if next.id == id => cursor.next,
-            _ => rays
-                .binary_search_by_key(&id, |r| r.id)
-                .map_err(|_| Error::UnknownRay(id))?,
+        let rays = &self.rays;
+        let index = match rays.id_at(cursor.next) {
+            Some(next) if next == id => cursor.next,
+            _ => rays.find(id).ok_or(Error::UnknownRay(id))?,
         };
         cursor.next = index + 1;
-        let ray = rays.get(index).ok_or(Error::UnknownRay(id))?;
+        let ray = rays.ray_at(index).ok_or(Error::UnknownRay(id))?;
         Ok(Ray {
             point: self.centre + ray.offset,
             direction: ray.direction,
         })
+    }
+
+    /// The ray store.
+    pub fn store(&self) -> &S {
+        &self.rays
     }
 
     /// The same projector with its centre moved by `shift` (rays unchanged), for example to put

@@ -9,7 +9,7 @@
 use crate::camera::{InnerOrientation, PixelGrid};
 use crate::collinearity::{camera_ray_direction, project_camera_point, ExteriorOrientation};
 use crate::intersection::{closest_approach, intersect_paper, Intersection};
-use crate::projector::{Projector, ProjectorRay, Ray, RayCursor};
+use crate::projector::{Projector, ProjectorRay, Ray, RayCursor, RayStore};
 use crate::{Error, Result};
 use nalgebra::{Matrix3, RealField, Vector3};
 
@@ -32,7 +32,7 @@ pub struct Rig<T: RealField, S> {
     projector: Projector<T, S>,
 }
 
-impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Rig<T, S> {
+impl<T: RealField + Copy, S: RayStore<T>> Rig<T, S> {
     /// A rig from world-frame parameters. The projector is recentred on the camera here, in `T`:
     /// build in f64 and use [`Rig::from_centred`] to make an f32 rig.
     pub fn new(
@@ -121,7 +121,7 @@ impl<T: RealField + Copy, S: AsRef<[ProjectorRay<T>]>> Rig<T, S> {
         if !(g.pixel_size > T::zero() && i.f > T::zero()) || g.width == 0 || g.height == 0 {
             return Err(Error::InvalidCalibration);
         }
-        if self.projector.rays().is_empty() {
+        if self.projector.store().count() == 0 {
             return Err(Error::InvalidCalibration);
         }
         Ok(())

@@ -66,6 +66,96 @@ pub fn firmware_elf() -> PathBuf {
     .clone()
 }
 
+/// The real board's firmware ELF (`nucleo_f401re`), built once per test process with
+/// `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release --features
+/// nucleo-f401re --bin nucleo_f401re`.
+pub fn nucleo_elf() -> PathBuf {
+    static ELF: OnceLock<PathBuf> = OnceLock::new();
+    ELF.get_or_init(|| {
+        let root = workspace_root();
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let status = Command::new(cargo)
+            .current_dir(&root)
+            .args(["build", "-p", "deltaz-firmware", "--target"])
+            .args([
+                "thumbv7em-none-eabihf",
+                "--release",
+                "--features",
+                "nucleo-f401re",
+            ])
+            .args(["--bin", "nucleo_f401re"])
+            .status()
+            .expect("run cargo to build the nucleo_f401re firmware");
+        assert!(status.success(), "the nucleo_f401re build failed");
+        let target = std::env::var_os("CARGO_TARGET_DIR")
+            .map(PathBuf::from)
+            .unwrap_or(root.join("target"));
+        target.join("thumbv7em-none-eabihf/release/nucleo_f401re")
+    })
+    .clone()
+}
+
+/// The `deltaz` command-line program, built once per test process with `cargo build -p
+/// deltaz-host --release --bin deltaz`.
+pub fn deltaz_binary() -> PathBuf {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| {
+        let root = workspace_root();
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let status = Command::new(cargo)
+            .current_dir(&root)
+            .args(["build", "-p", "deltaz-host", "--release", "--bin", "deltaz"])
+            .status()
+            .expect("run cargo to build deltaz");
+        assert!(status.success(), "the deltaz build failed");
+        let target = std::env::var_os("CARGO_TARGET_DIR")
+            .map(PathBuf::from)
+            .unwrap_or(root.join("target"));
+        target.join("release/deltaz")
+    })
+    .clone()
+}
+
+/// The static RAM of a Cortex-M ELF (bytes): what its allocated sections at the RAM's base
+/// (0x2000_0000 and up) occupy, initialised (`.data`) and zeroed (`.bss`, `.uninit`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StaticRam {
+    /// Initialised data (copied from flash at boot).
+    pub data: u64,
+    /// Zeroed or uninitialised data.
+    pub bss: u64,
+}
+
+/// [`StaticRam`] of the 32-bit little-endian ELF at `elf`, read from its section headers.
+pub fn static_ram(elf: &Path) -> StaticRam {
+    let bytes = std::fs::read(elf).expect("read the ELF");
+    assert_eq!(
+        &bytes[..6],
+        b"\x7fELF\x01\x01",
+        "a 32-bit little-endian ELF"
+    );
+    let u16_at = |at: usize| u64::from(u16::from_le_bytes([bytes[at], bytes[at + 1]]));
+    let u32_at = |at: usize| u64::from(u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()));
+    let (table, entry, count) = (u32_at(0x20), u16_at(0x2E), u16_at(0x30));
+    const ALLOC: u64 = 2;
+    const NOBITS: u64 = 8;
+    let mut ram = StaticRam { data: 0, bss: 0 };
+    for k in 0..count {
+        let header = (table + k * entry) as usize;
+        let (kind, flags) = (u32_at(header + 4), u32_at(header + 8));
+        let (address, size) = (u32_at(header + 12), u32_at(header + 20));
+        if flags & ALLOC == 0 || !(0x2000_0000..0x4000_0000).contains(&address) {
+            continue;
+        }
+        if kind == NOBITS {
+            ram.bss += size;
+        } else {
+            ram.data += size;
+        }
+    }
+    ram
+}
+
 /// Run the firmware under `qemu-system-arm -machine mps2-an386` with UART0 on stdout until its
 /// output contains `marker` or `timeout` passes; returns what it printed. QEMU is killed after.
 pub fn run_qemu_until(elf: &Path, marker: &str, timeout: Duration) -> String {
@@ -211,6 +301,88 @@ pub mod torso {
                     d = depth(cam.x, cam.y, ridge);
                 }
                 let (col, row) = rig.pixel_of_centred(&p).ok()?;
+                let phase = k as f64 * 2.399;
+                let (col, row) = (col + jitter * phase.cos(), row + jitter * phase.sin());
+                rig.grid().contains(col, row).then_some((ray.id, col, row))
+            })
+            .collect()
+    }
+}
+
+/// A simulated back-density rig: a 1,280 × 1,024 camera and a projector of 36 × 36 = 1,296
+/// rays, about 20 mm apart on a back 1.65 m away, its lattice turned 9° against the 250 mm
+/// baseline (along the image rows) so that the epipolar segments of neighbouring columns pass
+/// 3.6 px apart: dots identify over the whole 1,400-1,900 mm range.
+pub mod back_density {
+    use deltaz_host::io::system_file::SystemRig;
+    use deltaz_shared::camera::{InnerOrientation, PixelGrid};
+    use deltaz_shared::collinearity::ExteriorOrientation;
+    use deltaz_shared::projector::{Projector, ProjectorRay};
+    use deltaz_shared::rig::Rig;
+    use nalgebra::Vector3;
+
+    /// Lattice rows and columns.
+    pub const SIDE: u16 = 36;
+    /// Nearest and farthest surface of the working range (mm from the camera).
+    pub const RANGE: (f64, f64) = (1400.0, 1900.0);
+    /// The plates: three distances spanning 400 mm.
+    pub const PLATES: [f64; 3] = [1450.0, 1650.0, 1850.0];
+
+    /// The rig, centred on the camera (world axes = camera axes: the camera looks along −z).
+    /// Ray ids are row·100 + column. A little barrel distortion (k1) bends the segments in the
+    /// observed image.
+    pub fn rig() -> SystemRig {
+        let grid = PixelGrid {
+            pixel_size: 0.0053,
+            width: 1280,
+            height: 1024,
+            origin_col: 639.5,
+            origin_row: 511.5,
+        };
+        let inner = InnerOrientation {
+            k1: -4.0e-4,
+            ..InnerOrientation::ideal(10.0)
+        };
+        let exterior = ExteriorOrientation {
+            kappa: 0.0,
+            phi: 0.0,
+            omega: 0.0,
+            centre: Vector3::zeros(),
+        };
+        let centre = Vector3::new(250.0, 0.0, 0.0);
+        let aim = Vector3::new(0.0, 0.0, -1650.0) - centre;
+        // Lattice axes in the plane across the aim at 1.65 m: 20 mm apart, turned by 9°.
+        let (s, c) = 9.0_f64.to_radians().sin_cos();
+        let across = Vector3::new(aim.z, 0.0, -aim.x).normalize();
+        let up = aim.cross(&across).normalize();
+        let pitch = 20.0;
+        let half = f64::from(SIDE - 1) / 2.0;
+        let rays = (0..SIDE)
+            .flat_map(|r| (0..SIDE).map(move |k| (r, k)))
+            .map(|(r, k)| {
+                let (x, y) = ((f64::from(k) - half) * pitch, (f64::from(r) - half) * pitch);
+                let (x, y) = (c * x - s * y, s * x + c * y);
+                ProjectorRay {
+                    id: r * 100 + k,
+                    direction: (aim + across * x + up * y).normalize(),
+                    offset: Vector3::zeros(),
+                }
+            })
+            .collect();
+        let projector = Projector::new(centre, rays).expect("a sorted table of unit rays");
+        Rig::new(grid, inner, &exterior, projector)
+    }
+
+    /// The dots `(ray id, col, row)` the camera sees on the plate at distance `depth` (mm, a
+    /// plane across the camera's axis), each moved by `jitter` pixels in a direction that
+    /// varies per dot.
+    pub fn plate(rig: &SystemRig, depth: f64, jitter: f64) -> Vec<(u16, f64, f64)> {
+        rig.projector_centred()
+            .rays()
+            .iter()
+            .enumerate()
+            .filter_map(|(k, ray)| {
+                let (col, row) = rig.pixel_at_depth(ray.id, depth).ok()?;
                 let phase = k as f64 * 2.399;
                 let (col, row) = (col + jitter * phase.cos(), row + jitter * phase.sin());
                 rig.grid().contains(col, row).then_some((ray.id, col, row))

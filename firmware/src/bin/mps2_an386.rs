@@ -25,6 +25,7 @@ mod board {
     use deltaz_firmware::server::Server;
     use deltaz_firmware::smoke::{smoke_line, smoke_point, SMOKE_LINE};
     use deltaz_firmware::store::{Store, HEADER};
+    use deltaz_shared::protocol::{BoardClock, ClockSource};
     use embedded_io::{ErrorType, Write};
     use embedded_storage::nor_flash::{
         check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash,
@@ -201,7 +202,12 @@ mod board {
         let n = smoke_line(smoke_point(), &mut line);
         line.iter().take(n).for_each(|&b| uart.write_byte(b));
         uart.write_byte(0);
-        let probe = cortex_m::Peripherals::take().map(|p| CortexProbe::start(p.SYST));
+        // The board's one clock: 25 MHz.
+        let clock = BoardClock {
+            hz: 25_000_000,
+            source: ClockSource::Fixed,
+        };
+        let probe = cortex_m::Peripherals::take().map(|p| CortexProbe::start(p.SYST, clock));
         let store = Store::new(RegionFlash, [(0, SLOT), (SLOT, 2 * SLOT)]);
         if let (Some(probe), Ok(store)) = (probe, store) {
             // The server lives in a static, built there in place (no stack copy of it).
@@ -211,7 +217,7 @@ mod board {
                 // SAFETY: the handler (`DefaultHandler`) touches only the UART's receive side
                 // and `RX`, a lock-free queue made for a producer preempting its consumer.
                 unsafe { NVIC::unmask(Uart0Rx) };
-                let Ok(()) = server.serve(&RX, || RX.sleep_while_idle(), &mut uart);
+                let Ok(()) = server.serve(&RX, || RX.sleep_while_idle(), || {}, &mut uart);
             }
         }
         SCB::sys_reset()

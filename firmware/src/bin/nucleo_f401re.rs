@@ -3,12 +3,14 @@
 //! 8.7 KB of flash): the protocol on USART2 (PA2/PA3, wired to the ST-LINK's USB virtual COM
 //! port) at 2 Mbaud, the program in flash sectors 0-3 (64 KiB, see `build.rs`), the
 //! calibration store in sectors 4 (64 KiB at 0x0801_0000) and 5 (128 KiB at 0x0802_0000),
-//! SysTick at the core clock. The server (39.8 KB) is written in place into a static and the
-//! stack peaks at about 6.9 KB (measured under QEMU with the same code).
+//! SysTick at the core clock. The server (41.1 KB) is written in place into a static and the
+//! stack peaks at about 2.9 KB (measured under QEMU with the same code): 45.1 KB in all.
 //!
 //! - **Watchdog**: the independent watchdog (IWDG, its own ~32 kHz LSI) resets the board when
-//!   it is not fed for about 5 s ([`WATCHDOG_RELOAD`]); it is fed whenever the serve loop has
-//!   emptied the receive ring (woken by SysTick at least every 0.2 s) and in every flash wait. The longest
+//!   it is not fed for about 5 s ([`WATCHDOG_RELOAD`]); it is fed after every frame answered
+//!   (progress: a stream at line rate that never lets the receive ring run empty keeps it fed),
+//!   while the serve loop waits with an empty ring (woken by SysTick at least every 0.2 s) and
+//!   in every flash wait. The longest
 //!   operation, erasing the 128 KiB sector 5 (2 s at most), stalls the CPU (the code runs from
 //!   the same flash bank), so the timeout covers it even with the LSI at its fastest (47 kHz:
 //!   3.4 s).
@@ -32,6 +34,7 @@ use deltaz_firmware::probe::CortexProbe;
 use deltaz_firmware::rx_ring::{RxRing, RX_RING};
 use deltaz_firmware::server::Server;
 use deltaz_firmware::store::Store;
+use deltaz_shared::protocol::{BoardClock, ClockSource};
 use embedded_storage::nor_flash::{
     check_erase, check_read, check_write, ErrorType as FlashErrorType, NorFlash, NorFlashErrorKind,
     ReadNorFlash,
@@ -53,6 +56,22 @@ const SECTORS: [u32; 9] = [
 /// IWDG: LSI / 64 (500 Hz at 32 kHz), reload 2500: about 5 s (3.4 s at 47 kHz, 9.4 s at
 /// 17 kHz, the LSI's limits).
 const WATCHDOG_RELOAD: u16 = 2500;
+/// Polls of a clock's or the watchdog's ready flag before the board goes on without it: at
+/// least 8 ms at 84 MHz (a poll is a few cycles), where the HSE starts within 2 ms, the PLL
+/// locks within 0.1 ms and the IWDG's registers update within 6 LSI periods (0.4 ms).
+const READY_POLLS: u32 = 200_000;
+/// Polls of the flash's busy flag before an operation counts as failed: at least 2.4 s at
+/// 84 MHz (each poll also feeds the watchdog, about 10 cycles), beyond a 128 KiB sector's
+/// erase (2 s at most).
+const FLASH_POLLS: u32 = 20_000_000;
+/// Polls of the USART's transmit flags: a byte takes 5 µs at 2 Mbaud (420 cycles at 84 MHz).
+const TX_POLLS: u32 = 100_000;
+
+/// Whether `ready` holds within `polls` polls: every wait of the board is bounded (a clock
+/// that does not start, or an emulator that does not model a flag, cannot hang it).
+fn within(polls: u32, mut ready: impl FnMut() -> bool) -> bool {
+    (0..polls).any(|_| ready())
+}
 
 /// The independent watchdog, started: a handle that feeds it (the board's two users, the
 /// serve loop's idle wait and the flash, each hold one).
@@ -65,7 +84,7 @@ impl Watchdog {
         iwdg.kr().write(|w| w.key().unlock());
         iwdg.pr().write(|w| w.pr().divide_by64());
         iwdg.rlr().write(|w| w.rl().set(WATCHDOG_RELOAD));
-        while iwdg.sr().read().bits() != 0 {}
+        within(READY_POLLS, || iwdg.sr().read().bits() == 0);
         Watchdog.feed();
         Watchdog
     }
@@ -81,39 +100,71 @@ impl Watchdog {
 /// 84 MHz from the ST-LINK's 8 MHz MCO (HSE bypass): PLL M = 8 (1 MHz in), N = 336, P = 4;
 /// AHB 84 MHz, APB1 42 MHz (÷ 2, its limit), APB2 84 MHz; flash 2 wait states, prefetch and
 /// instruction cache (not the data cache: the store erases and writes the flash it reads).
-fn clocks(rcc: &pac::RCC, flash: &pac::FLASH) {
+/// Every wait is bounded ([`READY_POLLS`]): without the MCO (a board without it, an emulator)
+/// the PLL runs from the internal 16 MHz oscillator (M = 16) instead, and when the PLL does not
+/// lock either the board stays on the internal oscillator (16 MHz, APB1 undivided). Returns
+/// the clock it runs on (`Info` reports it).
+fn clocks(rcc: &pac::RCC, flash: &pac::FLASH) -> BoardClock {
     // The bypass is set while the HSE is off, then the HSE started.
     rcc.cr().modify(|_, w| w.hsebyp().set_bit());
     rcc.cr().modify(|_, w| w.hseon().set_bit());
-    while rcc.cr().read().hserdy().bit_is_clear() {}
-    // SAFETY: M = 8, N = 336, Q = 7 are in their fields' ranges (2..=63, 50..=432, 2..=15) and
-    // give a 336 MHz VCO from a 1 MHz input, both within the datasheet's limits.
+    let external = within(READY_POLLS, || rcc.cr().read().hserdy().bit_is_set());
+    if !external {
+        rcc.cr().modify(|_, w| w.hseon().clear_bit());
+        rcc.cr().modify(|_, w| w.hsebyp().clear_bit());
+    }
+    // SAFETY: M = 8 or 16, N = 336, Q = 7 are in their fields' ranges (2..=63, 50..=432,
+    // 2..=15) and give a 336 MHz VCO from a 1 MHz input, both within the datasheet's limits.
     rcc.pllcfgr().write(|w| unsafe {
-        w.pllm()
-            .bits(8)
+        let w = w
+            .pllm()
+            .bits(if external { 8 } else { 16 })
             .plln()
             .bits(336)
             .pllq()
             .bits(7)
             .pllp()
-            .div4()
-            .pllsrc()
-            .hse()
+            .div4();
+        if external {
+            w.pllsrc().hse()
+        } else {
+            w.pllsrc().hsi()
+        }
     });
     rcc.cr().modify(|_, w| w.pllon().set_bit());
     flash
         .acr()
         .write(|w| w.latency().ws2().prften().enabled().icen().enabled());
-    while rcc.cr().read().pllrdy().bit_is_clear() {}
-    // APB1 halved before the switch, so it never runs above 42 MHz.
-    rcc.cfgr().modify(|_, w| w.ppre1().div2());
-    rcc.cfgr().modify(|_, w| w.sw().pll());
-    while !rcc.cfgr().read().sws().is_pll() {}
+    if within(READY_POLLS, || rcc.cr().read().pllrdy().bit_is_set()) {
+        // APB1 halved before the switch, so it never runs above 42 MHz.
+        rcc.cfgr().modify(|_, w| w.ppre1().div2());
+        rcc.cfgr().modify(|_, w| w.sw().pll());
+        if within(READY_POLLS, || rcc.cfgr().read().sws().is_pll()) {
+            let source = if external {
+                ClockSource::External
+            } else {
+                ClockSource::InternalPll
+            };
+            return BoardClock {
+                hz: 84_000_000,
+                source,
+            };
+        }
+        rcc.cfgr().modify(|_, w| w.sw().hsi());
+        rcc.cfgr().modify(|_, w| w.ppre1().div1());
+    }
+    rcc.cr().modify(|_, w| w.pllon().clear_bit());
+    BoardClock {
+        hz: 16_000_000,
+        source: ClockSource::Internal,
+    }
 }
 
-/// USART2 on PA2 (TX) and PA3 (RX, pulled up), alternate function 7: 2 Mbaud 8N1 from APB1's
-/// 42 MHz (USARTDIV 1.3125 = 1 + 5/16, exact), its interrupt on a received byte or an overrun.
-fn usart2(rcc: &pac::RCC, gpioa: &pac::GPIOA, usart: &pac::USART2) {
+/// USART2 on PA2 (TX) and PA3 (RX, pulled up), alternate function 7: 2 Mbaud 8N1 from APB1
+/// (at 84 MHz 42 MHz: USARTDIV 1.3125 = 1 + 5/16, exact; on the internal oscillator alone
+/// 16 MHz, oversampling by 8: USARTDIV 1, exact), its interrupt on a received byte or an
+/// overrun.
+fn usart2(rcc: &pac::RCC, gpioa: &pac::GPIOA, usart: &pac::USART2, clock: BoardClock) {
     rcc.ahb1enr().modify(|_, w| w.gpioaen().set_bit());
     rcc.apb1enr().modify(|_, w| w.usart2en().set_bit());
     gpioa.afrl().modify(|_, w| w.afrl2().af7().afrl3().af7());
@@ -121,11 +172,17 @@ fn usart2(rcc: &pac::RCC, gpioa: &pac::GPIOA, usart: &pac::USART2) {
     gpioa
         .moder()
         .modify(|_, w| w.moder2().alternate().moder3().alternate());
-    usart
-        .brr()
-        .write(|w| w.div_mantissa().set(1).div_fraction().set(5));
+    let pll = clock.hz == 84_000_000;
+    usart.brr().write(|w| {
+        w.div_mantissa()
+            .set(1)
+            .div_fraction()
+            .set(if pll { 5 } else { 0 })
+    });
     usart.cr1().write(|w| {
-        w.ue()
+        w.over8()
+            .bit(!pll)
+            .ue()
             .set_bit()
             .te()
             .set_bit()
@@ -148,14 +205,15 @@ impl embedded_io::ErrorType for Vcp {
 impl embedded_io::Write for Vcp {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
         for &byte in buf {
-            while self.usart.sr().read().txe().bit_is_clear() {}
+            // Bounded: a transmitter that never empties loses the byte (the host resends).
+            within(TX_POLLS, || self.usart.sr().read().txe().bit_is_set());
             self.usart.dr().write(|w| w.dr().set(u16::from(byte)));
         }
         Ok(buf.len())
     }
 
     fn flush(&mut self) -> Result<(), Self::Error> {
-        while self.usart.sr().read().tc().bit_is_clear() {}
+        within(TX_POLLS, || self.usart.sr().read().tc().bit_is_set());
         Ok(())
     }
 }
@@ -172,7 +230,9 @@ impl Flash {
     /// error flag fails it.
     fn operate(&mut self, op: impl FnOnce(&pac::FLASH)) -> Result<(), NorFlashErrorKind> {
         let f = &self.flash;
-        self.wait();
+        if !self.wait() {
+            return Err(NorFlashErrorKind::Other);
+        }
         f.keyr().write(|w| w.key().set(0x4567_0123));
         f.keyr().write(|w| w.key().set(0xCDEF_89AB));
         // Clear the error flags of an earlier operation (write 1 to clear).
@@ -189,9 +249,10 @@ impl Flash {
                 .clear_bit_by_one()
         });
         op(f);
-        self.wait();
+        let finished = self.wait();
         let sr = self.flash.sr().read();
-        let failed = sr.pgserr().bit_is_set()
+        let failed = !finished
+            || sr.pgserr().bit_is_set()
             || sr.pgperr().bit_is_set()
             || sr.pgaerr().bit_is_set()
             || sr.wrperr().bit_is_set()
@@ -204,10 +265,13 @@ impl Flash {
         }
     }
 
-    fn wait(&self) {
-        while self.flash.sr().read().bsy().bit_is_set() {
+    /// Wait for the flash to finish, feeding the watchdog; `false` when it does not within
+    /// [`FLASH_POLLS`].
+    fn wait(&self) -> bool {
+        within(FLASH_POLLS, || {
             self.dog.feed();
-        }
+            self.flash.sr().read().bsy().bit_is_clear()
+        })
     }
 }
 
@@ -307,7 +371,8 @@ fn USART2() {
     }
 }
 
-/// SysTick wraps every 0.2 s (2²⁴ cycles at 84 MHz) and wakes the idle wait to feed the
+/// SysTick wraps every 0.2 s (2²⁴ cycles at 84 MHz; 1.05 s on the internal 16 MHz oscillator,
+/// still within the watchdog's 3.4 s) and wakes the idle wait to feed the
 /// watchdog; nothing else to do.
 #[exception]
 fn SysTick() {}
@@ -315,11 +380,11 @@ fn SysTick() {}
 #[entry]
 fn main() -> ! {
     if let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) {
-        clocks(&dp.RCC, &dp.FLASH);
-        usart2(&dp.RCC, &dp.GPIOA, &dp.USART2);
+        let clock = clocks(&dp.RCC, &dp.FLASH);
+        usart2(&dp.RCC, &dp.GPIOA, &dp.USART2, clock);
         let mut syst = cp.SYST;
         syst.enable_interrupt();
-        let probe = CortexProbe::start(syst);
+        let probe = CortexProbe::start(syst, clock);
         // The watchdog stops while a debugger (probe-rs) holds the core halted.
         dp.DBGMCU
             .apb1_fz()
@@ -337,11 +402,14 @@ fn main() -> ! {
                 // SAFETY: the handler (`USART2`) touches only the receive side and `RX`, a
                 // lock-free queue made for a producer preempting its consumer.
                 unsafe { NVIC::unmask(pac::Interrupt::USART2) };
+                // Fed while waiting for the host and after every frame answered: by progress,
+                // so a stream that never lets the ring run empty keeps it fed.
                 let idle = || {
                     dog.feed();
                     RX.sleep_while_idle();
                 };
-                let Ok(()) = server.serve(&RX, idle, &mut Vcp { usart: dp.USART2 });
+                let progress = || dog.feed();
+                let Ok(()) = server.serve(&RX, idle, progress, &mut Vcp { usart: dp.USART2 });
             }
         }
     }

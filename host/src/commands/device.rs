@@ -35,8 +35,8 @@ pub struct DeviceOpts {
     /// Run the firmware in QEMU (mps2-an386) and talk to it over a pty; `--qemu=ELF` names the
     /// firmware (default: thumbv7em-none-eabihf/release/mps2_an386 in the build directory that
     /// holds this program).
-    #[arg(long, global = true, num_args = 0..=1, require_equals = true, default_missing_value = "")]
-    qemu: Option<PathBuf>,
+    #[arg(long, global = true, num_args = 0..=1, require_equals = true)]
+    qemu: Option<Option<PathBuf>>,
     /// Response timeout (ms).
     #[arg(long, global = true, default_value_t = 3000)]
     timeout_ms: u64,
@@ -48,13 +48,10 @@ impl DeviceOpts {
         LinkArgs {
             port: self.port.clone(),
             baud: self.baud,
-            qemu: self.qemu.as_ref().map(|elf| {
-                if elf.as_os_str().is_empty() {
-                    default_firmware_elf()
-                } else {
-                    elf.clone()
-                }
-            }),
+            qemu: self
+                .qemu
+                .as_ref()
+                .map(|elf| elf.clone().unwrap_or_else(default_firmware_elf)),
             timeout: std::time::Duration::from_millis(self.timeout_ms),
             output,
         }
@@ -99,8 +96,9 @@ enum What {
         /// Observations CSV `image,point,col,row[,kind]` (dot rows; point = ray id).
         #[arg(long, conflicts_with = "simulate")]
         obs: Option<PathBuf>,
-        /// Simulate this many frames (1 to 100,000) of the system's dots on plates Z = 0, 100,
-        /// 200 mm.
+        /// Simulate this many frames (1 to 100,000) of the system's dots on three plates 100 mm
+        /// apart in front of the camera: Z = 0, 100, 200 mm of a plate frame; across the
+        /// camera's axis from where the pattern's middle ray passes it, in the camera system.
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
         simulate: Option<u32>,
         /// Output PLY (binary; mm, the system's frame, the calibration's fingerprint, each

@@ -2,21 +2,21 @@
 
 use deltaz_shared::projector::ProjectorRay;
 use deltaz_shared::protocol::calibration::{
-    encode_calibration, CalibrationHeader, IdentifyParams, WireRay, CALIBRATION_FORMAT,
+    encode_calibration, CalibrationHeader, IdentifyParams, CALIBRATION_FORMAT,
 };
+use deltaz_shared::ray_table::{PackError, RayModel};
 use deltaz_shared::rig::{Method, Rig};
-use nalgebra::Vector3;
 
 /// The calibration blob of `rig` for the device: the rig cast to f32 ([`Rig::cast`]: the
 /// projector centre X_p − X0 computed in f64 first), the camera centre kept in f64, the rays
-/// sorted by id (as the rig holds them) with offsets only for a non-central model. `None` when
-/// there are more than 65535 rays. No identification of unlabelled dots (see
-/// [`calibration_blob_identifying`]).
+/// sorted by id (as the rig holds them), packed from their f64 directions and offsets
+/// ([`RayModel`]). Fails with why when there are more than 65535 rays or the rays cannot be
+/// packed. No identification of unlabelled dots (see [`calibration_blob_identifying`]).
 pub fn calibration_blob<S: AsRef<[ProjectorRay<f64>]>>(
     rig: &Rig<f64, S>,
     fingerprint: u64,
     method: Method,
-) -> Option<Vec<u8>> {
+) -> Result<Vec<u8>, &'static str> {
     calibration_blob_identifying(rig, fingerprint, method, None)
 }
 
@@ -26,10 +26,12 @@ pub fn calibration_blob_identifying<S: AsRef<[ProjectorRay<f64>]>>(
     fingerprint: u64,
     method: Method,
     identification: Option<IdentifyParams>,
-) -> Option<Vec<u8>> {
-    let device: Rig<f32, Vec<ProjectorRay<f32>>> = rig.cast().ok()?;
+) -> Result<Vec<u8>, &'static str> {
+    let device: Rig<f32, Vec<ProjectorRay<f32>>> =
+        rig.cast().map_err(|_| "the rig does not cast to f32")?;
     let projector = device.projector_centred();
-    let rays = projector.rays();
+    let rays = rig.projector_centred().rays();
+    let model = RayModel::fit(rays).map_err(pack_error)?;
     let r = device.r_cam_world();
     let header = CalibrationHeader {
         format: CALIBRATION_FORMAT,
@@ -41,15 +43,26 @@ pub fn calibration_blob_identifying<S: AsRef<[ProjectorRay<f64>]>>(
         camera_centre: rig.camera_centre().into(),
         projector_centre: projector.centre().into(),
         identification,
-        rays: u16::try_from(rays.len()).ok()?,
+        model,
+        rays: u16::try_from(rays.len()).map_err(|_| "more than 65535 rays")?,
     };
-    let wire = rays.iter().map(|r| WireRay {
-        id: r.id,
-        direction: r.direction.into(),
-        offset: (r.offset != Vector3::zeros()).then(|| r.offset.into()),
-    });
-    let mut buf = vec![0u8; 256 + 32 * rays.len()];
-    let len = encode_calibration(&header, wire, &mut buf).ok()?;
+    let records = rays
+        .iter()
+        .map(|r| model.pack(r))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(pack_error)?;
+    let mut buf = vec![0u8; 256 + model.record() * rays.len()];
+    let len = encode_calibration(&header, records, &mut buf)
+        .map_err(|_| "the calibration does not encode")?;
     buf.truncate(len);
-    Some(buf)
+    Ok(buf)
+}
+
+fn pack_error(e: PackError) -> &'static str {
+    match e {
+        PackError::NoDominantAxis => {
+            "the projector's rays spread over more than a half-space (no axis they all point along)"
+        }
+        PackError::OffsetRange(_) => "a ray's offset from the projector centre exceeds 2048 mm",
+    }
 }

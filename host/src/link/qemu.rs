@@ -42,11 +42,28 @@ impl Qemu {
                     format!("cannot start qemu-system-arm (apt-get install qemu-system-arm): {e}"),
                 )
             })?;
-        Ok(Self {
+        let mut me = Self {
             child,
             link: Serial::from_port(Box::new(host_end)),
             _device_end: device_end,
-        })
+        };
+        me.skip_boot_line()?;
+        Ok(me)
+    }
+
+    /// Read the firmware's boot line (the smoke point, ended by a 0x00) so that a session's
+    /// first answers are not preceded by it: however long QEMU takes to boot, a clean line then
+    /// carries nothing but answers. Gives up quietly after 10 s (the line's drain and the
+    /// client's frame reader drop such text too, as damage).
+    fn skip_boot_line(&mut self) -> io::Result<()> {
+        let start = std::time::Instant::now();
+        let mut byte = [0u8; 1];
+        while start.elapsed() < Duration::from_secs(10) {
+            if self.recv(&mut byte, Duration::from_millis(100))? == 1 && byte[0] == 0 {
+                break;
+            }
+        }
+        Ok(())
     }
 }
 

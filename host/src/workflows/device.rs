@@ -8,7 +8,7 @@ use crate::report::console::Output;
 use anyhow::{bail, Context, Result};
 use deltaz_firmware::server::IN_FLIGHT_BYTES;
 use deltaz_shared::protocol::calibration::IdentifyParams;
-use deltaz_shared::protocol::{CalibrationSummary, ErrorCode, MAX_RAYS};
+use deltaz_shared::protocol::{CalibrationSummary, ErrorCode, MAX_NONCENTRAL_RAYS, MAX_RAYS};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -96,6 +96,11 @@ pub fn info(args: &LinkArgs) -> Result<()> {
             "max_calibration": i.max_calibration,
             "calibration": calibration,
             "boot_error": i.boot_error.map(|e| e.to_string()),
+            "clock": i.clock.map(|c| serde_json::json!({
+                "hz": c.hz,
+                "source": format!("{:?}", c.source).to_lowercase(),
+                "text": c.source.to_string(),
+            })),
         });
         println!("{json}");
         return Ok(());
@@ -119,6 +124,9 @@ pub fn info(args: &LinkArgs) -> Result<()> {
     if let Some(e) = i.boot_error {
         println!("the stored calibration failed to load at boot: {e}");
     }
+    if let Some(c) = i.clock {
+        println!("clock: {:.1} MHz from {}", f64::from(c.hz) / 1e6, c.source);
+    }
     Ok(())
 }
 
@@ -129,18 +137,28 @@ pub type LoadedSystem = (SystemFile, SystemRig, u64);
 /// device holds ([`MAX_RAYS`]).
 pub fn load_system(path: &Path) -> Result<LoadedSystem> {
     let (file, rig) = SystemFile::load(path)?;
-    check_capacity(path, &file)?;
+    check_capacity(path, &rig)?;
     let fingerprint = file.fingerprint_u64()?;
     Ok((file, rig, fingerprint))
 }
 
-/// Refuses a system with more rays than a device holds ([`MAX_RAYS`]).
-pub fn check_capacity(path: &Path, file: &SystemFile) -> Result<()> {
-    let rays = file.content.projector.rays.len();
-    if rays > MAX_RAYS {
+/// Refuses a system with more rays than a device holds ([`MAX_RAYS`], or
+/// [`MAX_NONCENTRAL_RAYS`] for a non-central model whose rays carry offsets), saying what
+/// would fit.
+pub fn check_capacity(path: &Path, rig: &SystemRig) -> Result<()> {
+    let rays = rig.projector_centred().rays();
+    let noncentral = rays.iter().any(|r| r.offset != nalgebra::Vector3::zeros());
+    let (capacity, kind) = if noncentral {
+        (MAX_NONCENTRAL_RAYS, "non-central rays (with offsets)")
+    } else {
+        (MAX_RAYS, "central rays")
+    };
+    if rays.len() > capacity {
         bail!(
-            "{}: {rays} projector rays, more than the device's capacity of {MAX_RAYS}",
-            path.display()
+            "{}: {} projector rays, more than the device holds: {capacity} {kind} (a central \
+             calibration holds up to {MAX_RAYS})",
+            path.display(),
+            rays.len()
         );
     }
     Ok(())

@@ -347,7 +347,7 @@ pub fn scan_command(args: &ScanArgs) -> Result<(ScanStats, String)> {
     let (file, rig) = SystemFile::load(&args.system)?;
     let fingerprint = file.fingerprint_u64()?;
     if matches!(args.on, ScanOn::Device { .. }) {
-        check_capacity(&args.system, &file)?;
+        check_capacity(&args.system, &rig)?;
     }
     let frame = file.content.frame.to_string();
     let created = !args.out.exists();

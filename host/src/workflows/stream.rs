@@ -6,10 +6,12 @@ use crate::io::atomic::write_all_atomic;
 use crate::io::observations::{dot_observations, read_observations};
 use crate::io::ply::{encode_with, CloudInfo, Encoding};
 use crate::io::points_comment;
-use crate::io::system_file::SystemRig;
+use crate::io::system_file::{SystemFrame, SystemRig};
 use crate::link::{DeviceError, PointOutcome, WorldPoint};
 use anyhow::{bail, Context, Result};
 use deltaz_calib::reconstruct::ReconstructedPoint;
+use deltaz_shared::intersection::closest_approach;
+use deltaz_shared::projector::Ray;
 use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::{PointStatus, MAX_BATCH};
 use deltaz_shared::rig::Method;
@@ -22,7 +24,8 @@ pub enum StreamSource {
     /// An observations CSV (`image,point,col,row[,kind]`; dot rows, point = ray id); one frame
     /// per image.
     Csv(PathBuf),
-    /// `frames` simulated frames: the system's dots on plates Z = 0, 100, 200, ... (rig frame).
+    /// `frames` simulated frames: the system's dots on three plates 100 mm apart in front of
+    /// the camera, whatever the system's frame ([`simulated_plates`]).
     Simulated {
         /// Number of frames.
         frames: usize,
@@ -203,14 +206,12 @@ fn stream_frames(args: &StreamArgs, loaded: Option<&LoadedSystem>) -> Result<Vec
             frames
         }
         StreamSource::Simulated { frames } => {
-            let Some((_, rig, _)) = loaded else {
+            let Some((file, rig, _)) = loaded else {
                 bail!("a simulated stream needs --system");
             };
+            let plates = simulated_plates(rig, &file.content.frame)?;
             (0..*frames)
-                .map(|k| {
-                    let z = 100.0 * (k % 3) as f64;
-                    (format!("sim{k}"), plate_dots(rig, z))
-                })
+                .map(|k| (format!("sim{k}"), plates[k % 3].clone()))
                 .collect()
         }
     })
@@ -234,14 +235,6 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
         )?;
     }
     let frames = stream_frames(args, loaded.as_ref())?;
-    if args.identify {
-        if let Some((image, frame)) = frames.iter().find(|(_, f)| f.len() > MAX_BATCH) {
-            bail!(
-                "{image}: {} dots, the device identifies at most {MAX_BATCH} per frame",
-                frame.len()
-            );
-        }
-    }
     let fingerprint = match &loaded {
         Some((_, _, fingerprint)) => Some(*fingerprint),
         None => device.info()?.calibration.map(|c| c.fingerprint),
@@ -354,6 +347,34 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
     Ok(())
 }
 
+/// The dots of three simulated plates, 100 mm apart, in front of the camera whatever the
+/// system's frame: in a plate frame the planes Z = 0, 100, 200 mm of that frame (the
+/// calibration plate and two beyond it); in the camera system planes across the camera's axis
+/// at D, D + 100 and D + 200 mm, D the depth at which the pattern's middle ray passes the
+/// camera's axis.
+pub fn simulated_plates(rig: &SystemRig, frame: &SystemFrame) -> Result<[Vec<(u16, f64, f64)>; 3]> {
+    let steps = [0.0, 100.0, 200.0];
+    if let SystemFrame::Plate { .. } = frame {
+        return Ok(steps.map(|z| plate_dots(rig, z)));
+    }
+    let projector = rig.projector_centred();
+    let rays = projector.rays();
+    let ray = rays.get(rays.len() / 2).context("the system has no rays")?;
+    let axis = Ray {
+        point: nalgebra::Vector3::zeros(),
+        direction: rig.r_cam_world().transpose() * nalgebra::Vector3::new(0.0, 0.0, -1.0),
+    };
+    let line = projector
+        .ray(ray.id)
+        .map_err(|e| anyhow::anyhow!("ray {}: {e}", ray.id))?;
+    let hit = closest_approach(&axis, &line)
+        .map_err(|_| anyhow::anyhow!("the pattern's middle ray runs along the camera's axis"))?;
+    if hit.lambda.is_nan() || hit.lambda <= 0.0 {
+        bail!("the pattern's middle ray passes behind the camera");
+    }
+    Ok(steps.map(|step| depth_dots(rig, hit.lambda + step)))
+}
+
 /// The centroids of the rig's dots on the plate Z = `z` (rig frame) that the camera sees.
 pub fn plate_dots(rig: &SystemRig, z: f64) -> Vec<(u16, f64, f64)> {
     let x0 = rig.camera_centre();
@@ -365,6 +386,19 @@ pub fn plate_dots(rig: &SystemRig, z: f64) -> Vec<(u16, f64, f64)> {
             let line = projector.ray(ray.id).ok()?;
             let t = (z - x0.z - line.point.z) / line.direction.z;
             let (col, row) = rig.pixel_of_centred(&line.at(t)).ok()?;
+            rig.grid().contains(col, row).then_some((ray.id, col, row))
+        })
+        .collect()
+}
+
+/// The centroids of the rig's dots that the camera sees on the plate across its axis at
+/// distance `depth` (mm).
+fn depth_dots(rig: &SystemRig, depth: f64) -> Vec<(u16, f64, f64)> {
+    rig.projector_centred()
+        .rays()
+        .iter()
+        .filter_map(|ray| {
+            let (col, row) = rig.pixel_at_depth(ray.id, depth).ok()?;
             rig.grid().contains(col, row).then_some((ray.id, col, row))
         })
         .collect()

@@ -48,7 +48,7 @@ fn points(path: &Path) -> HashMap<(String, String), [f64; 3]> {
 fn info_and_link_errors() {
     let info = ok(&["device", "info"]);
     assert!(
-        info.contains("protocol 4") && info.contains("no calibration"),
+        info.contains(&format!("protocol {PROTOCOL_VERSION}")) && info.contains("no calibration"),
         "{info}"
     );
     let out = deltaz(&["device", "info", "--json"]);
@@ -56,7 +56,7 @@ fn info_and_link_errors() {
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
     assert_eq!(json["protocol"], PROTOCOL_VERSION);
     assert!(json["boot_error"].is_null(), "{json}");
-    assert_eq!(json["ray_capacity"], 512);
+    assert_eq!(json["ray_capacity"], deltaz_shared::protocol::MAX_RAYS);
     assert!(json["calibration"].is_null(), "{json}");
     let absent = err(&["device", "info", "--port", "/dev/deltaz-none"]);
     assert!(absent.contains("no device at /dev/deltaz-none"), "{absent}");

@@ -129,8 +129,8 @@ fn frame(torso: &Torso, dot_angle: f64, seed: u64) -> (HostRig, Vec<(u16, Vector
 }
 
 type Paper = Identifier<f64, 512, 2048, 8192>;
-/// The device's identifier: f32, the same capacities but a tighter entry table.
-type Device = Identifier<f32, 512, 2048, 4096>;
+/// The device's identifier, as the firmware declares it (f32, its capacities).
+type Device = deltaz_firmware::device::DeviceIdentifier;
 
 /// The rig in f32 as the device holds it (centred on the camera, cast from the host's f64).
 fn device_rig(rig: &HostRig) -> Rig<f32, Vec<ProjectorRay<f32>>> {
@@ -231,8 +231,12 @@ fn torso_frames_identified() {
         }
         if n == 0 {
             println!(
-                "device identifier: {} bytes (f32, 512 rays, 2048 cells, 4096 entries)",
-                std::mem::size_of::<Device>()
+                "device identifier: {} bytes (f32, {} rays, {} cells, {} entries), cells of {} px",
+                std::mem::size_of::<Device>(),
+                deltaz_firmware::device::MAX_RAYS,
+                deltaz_firmware::device::IDENTIFIER_CELLS,
+                deltaz_firmware::device::IDENTIFIER_ENTRIES,
+                device.cell()
             );
         }
         assert!(

@@ -1,17 +1,20 @@
-//! The calibration blob the host uploads: `postcard(CalibrationHeader) ‖ postcard(WireRay)×rays`.
+//! The calibration blob the host uploads: `postcard(CalibrationHeader) ‖ record × rays`, each
+//! ray a packed record of the device's ray table ([`crate::ray_table`]: 8 bytes a central ray).
 //!
 //! Everything is already centred on the camera (see [`crate::rig`]): the projector centre is
 //! X_p − X0, computed in f64 on the host, so the device's f32 arithmetic works on small
 //! differences. R is sent as a matrix (no trigonometry on the device) and the rays are sorted by
-//! id with unit directions, ready for [`crate::projector::Projector::new`].
+//! id, packed by the host from its f64 rays ([`RayModel::pack`]): the device copies them into
+//! its ray table as they are.
 
 use super::frame::WireError;
 use crate::camera::{InnerOrientation, PixelGrid};
+use crate::ray_table::{RayModel, NONCENTRAL_RECORD};
 use crate::rig::Method;
 use serde::{Deserialize, Serialize};
 
 /// The blob format written in [`CalibrationHeader::format`].
-pub const CALIBRATION_FORMAT: u16 = 2;
+pub const CALIBRATION_FORMAT: u16 = 3;
 
 /// How the device identifies unlabelled dots (see [`crate::identify`]): it builds the epipolar
 /// segments and their lookup grid from these when it loads the calibration. The depth range is
@@ -77,36 +80,28 @@ pub struct CalibrationHeader {
     pub projector_centre: [f32; 3],
     /// Identification of unlabelled dots, if the device should do it.
     pub identification: Option<IdentifyParams>,
+    /// How the rays are packed.
+    pub model: RayModel,
     /// The number of rays that follow.
     pub rays: u16,
 }
 
-/// One projector ray on the wire.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct WireRay {
-    /// The ray id.
-    pub id: u16,
-    /// Unit direction (l, m, n).
-    pub direction: [f32; 3],
-    /// The non-central model's offset from the centre (mm), `None` for a central ray.
-    pub offset: Option<[f32; 3]>,
-}
-
-/// Write the blob into `buf`; returns its length. `rays` must yield `header.rays` rays.
+/// Write the blob into `buf`; returns its length. `rays` must yield `header.rays` records
+/// ([`RayModel::pack`]; the first `header.model.record()` bytes of each are written).
 pub fn encode_calibration(
     header: &CalibrationHeader,
-    rays: impl IntoIterator<Item = WireRay>,
+    rays: impl IntoIterator<Item = [u8; NONCENTRAL_RECORD]>,
     buf: &mut [u8],
 ) -> Result<usize, WireError> {
     let mut len = postcard::to_slice(header, buf)
         .map_err(|_| WireError::BufferFull)?
         .len();
+    let size = header.model.record();
     let mut count = 0usize;
     for ray in rays {
-        let rest = buf.get_mut(len..).ok_or(WireError::BufferFull)?;
-        len += postcard::to_slice(&ray, rest)
-            .map_err(|_| WireError::BufferFull)?
-            .len();
+        let out = buf.get_mut(len..len + size).ok_or(WireError::BufferFull)?;
+        out.copy_from_slice(ray.get(..size).ok_or(WireError::Malformed)?);
+        len += size;
         count += 1;
     }
     if count != usize::from(header.rays) {
@@ -115,18 +110,15 @@ pub fn encode_calibration(
     Ok(len)
 }
 
-/// The longest encoded [`WireRay`]: a 3-byte id varint, the direction, the offset's tag and
-/// the offset.
-pub const MAX_WIRE_RAY: usize = 3 + 12 + 1 + 12;
-/// Bytes read at once for the header (longer than its longest encoding, 160 bytes).
+/// Bytes read at once for the header (longer than its longest encoding, 165 bytes).
 const HEADER_WINDOW: usize = 192;
 
-/// Read a blob: returns the header after handing every ray, in order, to `take_ray` (which may
-/// refuse one, for example when its table is full). Fails on another format, a short or long
-/// blob, or a refused ray.
+/// Read a blob: returns the header after handing it and every ray's record, in order, to
+/// `take_ray` (which may refuse one, for example when its table is full). Fails on another format, a
+/// short or long blob, or a refused ray.
 pub fn decode_calibration(
     blob: &[u8],
-    take_ray: impl FnMut(WireRay) -> bool,
+    take_ray: impl FnMut(&CalibrationHeader, &[u8]) -> bool,
 ) -> Result<CalibrationHeader, WireError> {
     decode_calibration_from(
         blob.len(),
@@ -143,7 +135,7 @@ pub fn decode_calibration(
 pub fn decode_calibration_from<E>(
     len: usize,
     mut read: impl FnMut(usize, &mut [u8]) -> Result<(), E>,
-    mut take_ray: impl FnMut(WireRay) -> bool,
+    mut take_ray: impl FnMut(&CalibrationHeader, &[u8]) -> bool,
 ) -> Result<CalibrationHeader, WireError> {
     let mut window = [0u8; HEADER_WINDOW];
     let mut at = 0;
@@ -151,10 +143,15 @@ pub fn decode_calibration_from<E>(
     if header.format != CALIBRATION_FORMAT {
         return Err(WireError::UnknownMessage);
     }
+    let size = header.model.record();
     for _ in 0..header.rays {
-        let ray_window = window.get_mut(..MAX_WIRE_RAY).unwrap_or_default();
-        let ray: WireRay = next_item(len, &mut at, &mut read, ray_window)?;
-        if !take_ray(ray) {
+        if at + size > len {
+            return Err(WireError::Malformed);
+        }
+        let record = window.get_mut(..size).unwrap_or_default();
+        read(at, record).map_err(|_| WireError::Malformed)?;
+        at += size;
+        if !take_ray(&header, record) {
             return Err(WireError::Malformed);
         }
     }

@@ -152,7 +152,8 @@ pub enum PointStatus {
     Unassigned,
     /// Identification: two or more segments pass within tolerance (the id is the closest ray).
     Ambiguous,
-    /// Identification: another dot of the frame was assigned the same ray (the id is that ray).
+    /// Identification: another dot of the frame was assigned the same ray (the id is that ray;
+    /// the host finds these).
     Conflict,
     /// The centroid lies off the calibration's sensor (more than half a pixel outside).
     OffSensor,
@@ -314,8 +315,7 @@ impl<'de> Deserialize<'de> for PointResult {
 
 /// The device's answer for one unlabelled dot: the ray it was identified as and its point, or a
 /// status. The id is the ray (a point, or a reconstruction status), the closest ray
-/// ([`PointStatus::Ambiguous`]), the ray two dots claim ([`PointStatus::Conflict`]), or 0
-/// ([`PointStatus::Unassigned`]). On the wire the delta-coded id (see [`super::delta`]) and the
+/// ([`PointStatus::Ambiguous`]), or 0 ([`PointStatus::Unassigned`]). On the wire the delta-coded id (see [`super::delta`]) and the
 /// 10 bytes of the [`PointResult`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct IdentifiedPoint {

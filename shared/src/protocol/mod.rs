@@ -8,7 +8,7 @@
 //!
 //! | request ([`RequestBody`]) | response ([`ResponseBody`]) |
 //! |---|---|
-//! | `Info` | `Info(DeviceInfo)`: firmware and protocol version, capacities, calibration or none, why the stored one failed to load at boot |
+//! | `Info` | `Info(DeviceInfo)`: firmware and protocol version, capacities, calibration or none, why the stored one failed to load at boot, the board's clock |
 //! | `UploadBegin { len, crc }` | `UploadReady { len }` |
 //! | `UploadChunk { offset, data }` | `ChunkAccepted { next_offset }` |
 //! | `UploadCommit` | `Committed { fingerprint, generation }` |
@@ -33,7 +33,8 @@
 //! the delta-coded id of the ray the device identified (1-3 bytes: the dots come in image order)
 //! and the 10-byte result. The device identifies with [`crate::identify`] (f32), its lookup grid
 //! built when the calibration is loaded, over the depth range and tolerance the calibration
-//! carries ([`calibration::IdentifyParams`]).
+//! carries ([`calibration::IdentifyParams`]), each dot by itself: two dots of one frame claiming
+//! one ray are found by the host, over the whole frame (which may take several requests).
 
 pub mod calibration;
 pub mod delta;
@@ -47,12 +48,17 @@ pub use frame::{decode_request, decode_response, encode_frame, WireError};
 use serde::{Deserialize, Serialize};
 
 /// The protocol version reported in [`DeviceInfo`]; a change of the wire format increments it.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 /// The most centroids in one `Compute` request.
 pub const MAX_BATCH: usize = 512;
+/// The bytes of a device's ray table ([`crate::ray_table::RayTable`]).
+pub const RAY_POOL: usize = 1320 * crate::ray_table::CENTRAL_RECORD;
 /// The most projector rays a device's calibration holds (its [`DeviceInfo::ray_capacity`]),
-/// known to the host before anything is sent.
-pub const MAX_RAYS: usize = 512;
+/// known to the host before anything is sent: central rays; a non-central calibration holds
+/// [`MAX_NONCENTRAL_RAYS`].
+pub const MAX_RAYS: usize = RAY_POOL / crate::ray_table::CENTRAL_RECORD;
+/// The most rays of a non-central calibration (each with its offset).
+pub const MAX_NONCENTRAL_RAYS: usize = RAY_POOL / crate::ray_table::NONCENTRAL_RECORD;
 /// The most bytes in one upload chunk.
 pub const CHUNK_SIZE: usize = 1024;
 /// The longest encoded frame either end sends or accepts, delimiter included: a full
@@ -105,8 +111,9 @@ pub enum RequestBody {
     Stats,
     /// Restart the device (the stored calibration is loaded again at boot).
     Reset,
-    /// One camera frame's dots without ray ids: the device identifies them (epipolar segments,
-    /// see [`crate::identify`]) and computes the points.
+    /// Dots of a camera frame without ray ids: the device identifies each (epipolar segments,
+    /// see [`crate::identify`]) and computes the points (conflicts between dots are the
+    /// host's to find).
     Identify {
         /// Up to [`MAX_BATCH`] dots.
         dots: heapless::Vec<Dot, MAX_BATCH>,
@@ -192,6 +199,45 @@ pub struct DeviceInfo {
     /// Why the stored calibration could not be loaded at boot (it is then not active), if it
     /// could not.
     pub boot_error: Option<ErrorCode>,
+    /// The clock the board runs on, where the board knows it.
+    pub clock: Option<BoardClock>,
+}
+
+/// A board's core clock, as `Info` reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BoardClock {
+    /// The core clock (Hz).
+    pub hz: u32,
+    /// Where it comes from.
+    pub source: ClockSource,
+}
+
+/// Where a board's core clock comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ClockSource {
+    /// The external clock (a crystal, or the ST-LINK's 8 MHz MCO) through the PLL.
+    External,
+    /// The internal RC oscillator through the PLL: the external clock did not start.
+    InternalPll,
+    /// The internal RC oscillator alone: neither the external clock nor the PLL started.
+    Internal,
+    /// The board's one fixed clock (an emulated board).
+    Fixed,
+}
+
+impl core::fmt::Display for ClockSource {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            ClockSource::External => "the external clock through the PLL",
+            ClockSource::InternalPll => {
+                "the internal oscillator through the PLL (the external clock did not start)"
+            }
+            ClockSource::Internal => {
+                "the internal oscillator alone (neither the external clock nor the PLL started)"
+            }
+            ClockSource::Fixed => "the board's fixed clock",
+        })
+    }
 }
 
 /// What identifies the active calibration.
@@ -250,8 +296,8 @@ pub enum ErrorCode {
     Storage,
     /// `Identify` with a calibration that carries no identification parameters.
     NoIdentification,
-    /// The calibration's identification parameters need a larger lookup grid than the device
-    /// holds (use a smaller depth range or tolerance).
+    /// The calibration's identification parameters need more lookup grid entries than the
+    /// device holds even with its cells as large as the image (more rays than entries).
     IdentifierCapacity,
 }
 
@@ -271,7 +317,7 @@ impl core::fmt::Display for ErrorCode {
                 "the calibration carries no depth range for identifying dots"
             }
             ErrorCode::IdentifierCapacity => {
-                "the depth range and tolerance need a larger lookup grid than the device holds"
+                "the calibration has more rays than the device's identifier holds entries"
             }
         })
     }

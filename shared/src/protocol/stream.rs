@@ -364,8 +364,10 @@ impl<'b> FrameWriter<Cobs<Slice<'b>>> {
 
 impl<'o> FrameWriter<CobsSink<'o>> {
     /// Start the response to request `seq` of kind `tag`, its bytes handed to `out` block by
-    /// block (a UART: no transmit buffer).
+    /// block (a UART: no transmit buffer), after a leading delimiter: a frame cut short on the
+    /// line (its end lost) ends there instead of taking the next frame with it.
     pub fn streamed(out: &'o mut dyn FnMut(&[u8]), seq: u32, tag: u32) -> Self {
+        out(&[0]);
         let mut me = Self::over(CobsSink::new(out));
         // A sink takes every byte (its pushes cannot fail): nothing to report here.
         let _ = me.put(&seq).and_then(|()| me.put(&tag));

@@ -4,9 +4,10 @@
 use deltaz_shared::protocol::calibration::IntersectionMethod;
 use deltaz_shared::protocol::stream::{tag, view_request, FrameWriter, RequestView};
 use deltaz_shared::protocol::{
-    decode_request, decode_response, encode_frame, CalibrationSummary, Centroid, DeviceInfo,
-    DeviceStats, Dot, ErrorCode, IdentifiedPoint, PointResult, PointStatus, Request, RequestBody,
-    Response, ResponseBody, WireError, MAX_FRAME, PROTOCOL_VERSION,
+    decode_request, decode_response, encode_frame, BoardClock, CalibrationSummary, Centroid,
+    ClockSource, DeviceInfo, DeviceStats, Dot, ErrorCode, IdentifiedPoint, PointResult,
+    PointStatus, Request, RequestBody, Response, ResponseBody, WireError, MAX_FRAME,
+    PROTOCOL_VERSION,
 };
 
 fn requests() -> Vec<Request> {
@@ -72,6 +73,10 @@ fn responses() -> Vec<Response> {
                 camera_centre: [375.121, 364.541, 1842.675],
             }),
             boot_error: Some(ErrorCode::IdentifierCapacity),
+            clock: Some(BoardClock {
+                hz: 84_000_000,
+                source: ClockSource::InternalPll,
+            }),
         }),
         ResponseBody::UploadReady { len: 300 },
         ResponseBody::ChunkAccepted { next_offset: 1027 },
@@ -148,9 +153,11 @@ const REQUEST_FRAMES: [&str; 8] = [
 
 /// The frames of [`responses`], in order.
 const RESPONSE_FRAMES: [&str; 11] = [
-    // Protocol 4, then (after the calibration) boot_error Some(IdentifierCapacity): 01 0a.
-    "02 01 01 02 01 37 04 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
-     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 0a 5c f4 ed 24 00",
+    // Protocol 5, then (after the calibration) boot_error Some(IdentifierCapacity): 01 0a, and
+    // the clock: Some, 84,000,000 Hz (varint 80 fa 86 28), the internal oscillator's PLL (01).
+    "02 01 01 02 01 3d 05 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
+     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 0a 01 80 fa 86 \
+     28 01 46 97 7d 2d 00",
     "09 02 01 ac 02 69 ef 33 66 00",
     "07 03 02 83 08 26 e7 02 2e 00",
     "11 04 03 ef 9b af cd f8 ac d1 91 01 02 d0 af 85 68 00",
@@ -298,7 +305,9 @@ fn streamed_out(response: &Response, out: &mut dyn FnMut(&[u8])) {
             w.finish().unwrap();
         }
         _ => {
+            // The device's leading delimiter, then the frame written field by field.
             let len = written(response, &mut buf);
+            out(&[0]);
             out(&buf[..len]);
         }
     }
@@ -325,8 +334,10 @@ fn streamed_frames_equal_buffered_ones() {
     let expected = encode_frame(&response, &mut buf).unwrap().to_vec();
     let mut out = Vec::new();
     streamed_out(&response, &mut |b| out.extend_from_slice(b));
-    assert_eq!(out, expected);
-    assert_eq!(decode_response(&mut body(&out)), Ok(response));
+    // Streamed, a frame starts with a delimiter: one cut short ends there.
+    assert_eq!(out[0], 0);
+    assert_eq!(out[1..], expected);
+    assert_eq!(decode_response(&mut body(&out[1..])), Ok(response));
 }
 
 #[test]
@@ -339,10 +350,15 @@ fn response_frames_are_golden() {
         let mut streamed = [0u8; MAX_FRAME];
         let len = written(&response, &mut streamed);
         assert_eq!(&streamed[..len], &bytes(golden)[..], "{:?}", response.body);
-        // And block by block, straight out.
+        // And block by block, straight out, after a leading delimiter.
         let mut out = Vec::new();
         streamed_out(&response, &mut |b| out.extend_from_slice(b));
-        assert_eq!(out, bytes(golden), "{:?}", response.body);
+        assert_eq!(
+            out,
+            [&[0][..], &bytes(golden)].concat(),
+            "{:?}",
+            response.body
+        );
         assert_eq!(decode_response(&mut body(frame)), Ok(response));
     }
 }

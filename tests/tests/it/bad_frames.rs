@@ -272,7 +272,9 @@ fn fuzz_a_million_frames() {
 /// newest (its bytes went only into the spare slot) and the previous calibration stays active.
 #[test]
 fn invalid_calibrations_are_refused() {
-    use deltaz_shared::protocol::calibration::{decode_calibration, encode_calibration, WireRay};
+    use deltaz_shared::protocol::calibration::{decode_calibration, encode_calibration};
+    use deltaz_shared::protocol::{MAX_NONCENTRAL_RAYS, MAX_RAYS};
+    use deltaz_shared::ray_table::NONCENTRAL_RECORD;
     let mut device = InProcess::new();
     let good = calibration_blob(&paper_rig(), 1, Method::ClosestApproach).unwrap();
     let committed = upload(&mut device, &good, CRC.checksum(&good), 1);
@@ -281,36 +283,40 @@ fn invalid_calibrations_are_refused() {
         ResponseBody::Committed { fingerprint: 1, .. }
     ));
 
-    let mut rays = Vec::new();
-    let header = decode_calibration(&good, |r| {
-        rays.push(r);
+    let mut records: Vec<Vec<u8>> = Vec::new();
+    let header = decode_calibration(&good, |_, r| {
+        records.push(r.to_vec());
         true
     })
     .unwrap();
-    let ray = rays[0];
-    let tilted = |id: u16, dx: f32| WireRay {
-        id,
-        direction: [ray.direction[0] + dx, ray.direction[1], ray.direction[2]],
-        ..ray
+    // The first ray's record under another id (a non-central record's offset zero).
+    let ray = |id: u16| {
+        let mut r = [0u8; NONCENTRAL_RECORD];
+        r[..8].copy_from_slice(&records[0][..8]);
+        r[..2].copy_from_slice(&id.to_le_bytes());
+        r
     };
-    let unit = |id| tilted(id, 0.0);
+    let first = ray(u16::from_le_bytes([records[0][0], records[0][1]]));
     let mut nan_f = header.clone();
     nan_f.inner.f = f32::NAN;
     let mut zero_pixel = header.clone();
     zero_pixel.grid.pixel_size = 0.0;
-    let too_many: Vec<WireRay> = (0..513).map(unit).collect();
+    let too_many: Vec<_> = (0..MAX_RAYS as u16 + 1).map(ray).collect();
+    let mut noncentral = header.clone();
+    noncentral.model.noncentral = true;
+    let too_many_noncentral: Vec<_> = (0..MAX_NONCENTRAL_RAYS as u16 + 1).map(ray).collect();
     let mut no_pixels = header.clone();
     no_pixels.grid.width = 0;
     no_pixels.grid.height = 0;
-    let cases: Vec<(&str, _, Vec<WireRay>)> = vec![
-        ("NaN focal length", nan_f, vec![ray]),
-        ("zero pixel size", zero_pixel, vec![ray]),
-        ("unsorted rays", header.clone(), vec![unit(5), unit(3)]),
-        ("duplicate ray", header.clone(), vec![unit(5), unit(5)]),
-        ("non-unit direction", header.clone(), vec![tilted(5, 0.01)]),
-        ("513 rays", header.clone(), too_many),
+    let cases: Vec<(&str, _, Vec<[u8; NONCENTRAL_RECORD]>)> = vec![
+        ("NaN focal length", nan_f, vec![first]),
+        ("zero pixel size", zero_pixel, vec![first]),
+        ("unsorted rays", header.clone(), vec![ray(5), ray(3)]),
+        ("duplicate ray", header.clone(), vec![ray(5), ray(5)]),
+        ("1,321 central rays", header.clone(), too_many),
+        ("622 non-central rays", noncentral, too_many_noncentral),
         ("no rays", header.clone(), vec![]),
-        ("a 0 × 0 sensor", no_pixels, vec![ray]),
+        ("a 0 × 0 sensor", no_pixels, vec![first]),
     ];
     for (i, (what, mut h, rays)) in cases.into_iter().enumerate() {
         h.rays = rays.len() as u16;

@@ -3,7 +3,7 @@
 //! 10,000 points and checks every one against its own f64 result; then resets the device and
 //! checks that the calibration survived.
 
-use deltaz_host::link::{Device, Qemu, Transport};
+use deltaz_host::link::{Device, LineCounts, Qemu, Transport};
 use deltaz_shared::protocol::Centroid;
 use deltaz_shared::rig::Method;
 use deltaz_tests::firmware_elf;
@@ -75,17 +75,18 @@ fn qemu_upload_stream_reset() {
     println!(
         "440-point compute: {ticks} SysTick ticks = {per_point} instructions per point (icount shift=0, 40 per tick)"
     );
-    // Under -icount the count is the same on every run: the bar, the answer's encoding
-    // and its bytes into the UART included.
+    // Under -icount the count is the same on every run: the answer's encoding and its bytes
+    // into the UART included. 571 with 28-byte f32 rays; unpacking the 8-byte rays of the
+    // 1,320-ray table (two 24-bit slopes, the dominant axis) costs about 75 more.
     assert!(ticks > 0, "SysTick counts under -icount");
     assert!(
-        per_point <= 600,
-        "{per_point} instructions per labelled point (goal ≤ 600)"
+        per_point <= 660,
+        "{per_point} instructions per labelled point (goal ≤ 660)"
     );
     let stack = device.stats().expect("stats").stack_peak;
     println!("stack high-water mark after the stream: {stack} bytes");
-    // The server (39.8 KB: one 14.3 KB f32 ray table, the 21.5 KB dot identifier, the 3.6 KB
-    // receive buffer) is written in place into a static; requests are read in place and
+    // The server (41.1 KB: the 10.6 KB packed ray table, the 26.5 KB dot identifier, the
+    // 3.6 KB receive buffer) is written in place into a static; requests are read in place and
     // responses streamed out as they are written, so the stack holds frames of small values
     // only (the bar: 8 KiB, see firmware/README.md).
     assert!((1_000..=8 * 1024).contains(&stack), "stack peak {stack} B");
@@ -156,13 +157,25 @@ fn host_points(
         .collect()
 }
 
-/// The soak (run it with `--ignored`: 7 minutes here): 1,144,000 points, 2,600 frames of
-/// the 440-dot plate at 13 depths and shifting sub-pixel offsets, streamed through QEMU with 4
-/// requests in flight; every answer bit-identical to the in-process device's.
+/// The soak in CI: 114,400 points (260 frames of the 440-dot plate at 13 depths and shifting
+/// sub-pixel offsets) through QEMU with 4 requests in flight, every answer bit-identical to the
+/// in-process device's, no bad frame and nothing damaged or resent on the line.
+#[test]
+fn qemu_soak_114400_points() {
+    soak(114_400);
+}
+
+/// The full soak (run it with `--ignored`: 7 minutes here): 1,144,000 points.
 #[test]
 #[ignore = "a 7-minute soak; run with --ignored"]
 fn qemu_soak_1144000_points() {
-    const POINTS: usize = 1_144_000;
+    soak(1_144_000);
+}
+
+/// Stream `points` points through QEMU, 4 requests in flight, 26 frames at a time: every
+/// answer bit-identical to the in-process device's, the device counts no bad frame and the
+/// client saw nothing damaged, unreadable or stale and resent nothing.
+fn soak(points: usize) {
     const CHUNK: usize = 26;
     let rig = pattern_rig();
     let qemu = Qemu::spawn(&firmware_elf()).expect("start QEMU");
@@ -175,14 +188,14 @@ fn qemu_soak_1144000_points() {
 
     let start = Instant::now();
     let (mut streamed, mut frames) = (0usize, 0usize);
-    while streamed < POINTS {
+    while streamed < points {
         let mut chunk = Vec::with_capacity(CHUNK);
-        while chunk.len() < CHUNK && streamed < POINTS {
+        while chunk.len() < CHUNK && streamed < points {
             let k = frames as f64;
             let z = (frames % 13) as f64 * 15.0;
             let shift = ((k * 0.37) % 1.0 - 0.5, (k * 0.61) % 1.0 - 0.5);
             let mut frame = plate_centroids(&rig, z, shift);
-            frame.truncate(POINTS - streamed);
+            frame.truncate(points - streamed);
             streamed += frame.len();
             frames += 1;
             chunk.push(frame);
@@ -196,14 +209,46 @@ fn qemu_soak_1144000_points() {
     }
     let seconds = start.elapsed().as_secs_f64();
     let stats = device.stats().expect("stats");
+    let line = device.line_counts();
     println!(
-        "soak: {streamed} points in {frames} frames through QEMU in {seconds:.0} s ({:.0} points/s), bit-identical to the in-process device; the device counted {} points, {} bad frames; the line: {:?}",
+        "soak: {streamed} points in {frames} frames through QEMU in {seconds:.0} s ({:.0} points/s), bit-identical to the in-process device; the device counted {} points, {} bad frames; the line: {line:?}",
         streamed as f64 / seconds,
         stats.points,
         stats.bad_frames,
-        device.line_counts()
     );
-    assert_eq!(streamed, POINTS);
-    // More only if a request was sent again (its answer lost or late).
-    assert!(stats.points as usize >= POINTS, "{} points", stats.points);
+    assert_eq!(streamed, points);
+    assert_eq!(stats.bad_frames, 0, "bad frames in the soak");
+    assert_eq!(line, LineCounts::default(), "the clean line carried damage");
+    assert_eq!(stats.points as usize, points, "a request ran twice");
+}
+
+/// Bare `--qemu` (as the README documents it), before or after the subcommand, starts the
+/// firmware built next to `deltaz`, and a clean session reports a clean line.
+#[test]
+fn bare_qemu_flag_starts_the_default_firmware() {
+    firmware_elf();
+    for args in [
+        ["device", "--qemu", "info", "--json"],
+        ["device", "info", "--qemu", "--json"],
+    ] {
+        let out = std::process::Command::new(deltaz_tests::deltaz_binary())
+            .args(args)
+            .output()
+            .expect("run deltaz");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{args:?}: {text} {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            text.contains("\"protocol\":5") && text.contains("\"source\":\"fixed\""),
+            "{text}"
+        );
+    }
+    // The boot line is read before the session: a clean line carries nothing else.
+    let mut device = Device::new(Qemu::spawn(&firmware_elf()).expect("start QEMU"));
+    device.info().expect("info");
+    device.stats().expect("stats");
+    assert_eq!(device.line_counts(), LineCounts::default());
 }
