@@ -2,6 +2,7 @@
 
 use crate::report::console::Output;
 use crate::simulate::{self, images::ImageSpec};
+use crate::workflows::system::simulated_system;
 use anyhow::Result;
 use deltaz_measure::render::BitDepth;
 use std::path::PathBuf;
@@ -9,7 +10,7 @@ use std::path::PathBuf;
 /// Arguments of `deltaz simulate`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// `paper` (built in) or a scenario TOML file.
+    /// `paper`, `desk`, `back` (built in) or a scenario TOML file.
     #[arg(long)]
     scenario: String,
     /// Output directory.
@@ -40,16 +41,34 @@ pub fn exec(args: Args) -> Result<()> {
     });
     let progress = spec
         .map(|_| Output::default().progress(format!("rendering the images of {}", scenario.name)));
-    let written = simulate::write_scenario(&args.out, &scenario, seed, spec.as_ref())?;
+    // A scenario with a back comes with its calibration, as `calibrate system` gives it.
+    let system = match &scenario.back {
+        Some(_) => Some(simulated_system(&simulate::simulate(&scenario, seed))?),
+        None => None,
+    };
+    let extra: Vec<(&str, &[u8])> = system
+        .iter()
+        .map(|json| ("system.json", json.as_bytes()))
+        .collect();
+    let written = simulate::write_scenario(&args.out, &scenario, seed, spec.as_ref(), &extra)?;
     if let Some(progress) = progress {
         progress.finish_and_clear();
     }
-    if let Some((images, objects)) = written.rendered {
-        println!("{images} images -> {}", args.out.join("images").display());
+    if let Some(counts) = written.rendered {
+        let images = args.out.join("images");
+        println!("{} images -> {}", counts.images, images.display());
         println!(
-            "{objects} test object frames -> {}",
-            args.out.join("images/objects").display()
+            "{} test object frames -> {}",
+            counts.objects,
+            images.join("objects").display()
         );
+        if counts.back > 0 {
+            println!(
+                "{} back frames -> {}",
+                counts.back,
+                images.join("back").display()
+            );
+        }
     }
     let sim = &written.simulation;
     println!(

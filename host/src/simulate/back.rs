@@ -155,6 +155,11 @@ impl Deformity {
             Self::severe(),
         ]
     }
+
+    /// The deformity of [`Deformity::all`] called `name`.
+    pub fn named(name: &str) -> Option<Self> {
+        Self::all().into_iter().find(|d| d.name == name)
+    }
 }
 
 fn curve(apex: f64, extent: f64, rotation_deg: f64, shift: f64) -> Curve {

@@ -69,7 +69,12 @@ impl Default for ImageSpec {
 }
 
 /// The ellipse of a small circle: the images of centre ± radius along two directions.
-fn ellipse(centre: (f64, f64), a1: Vector2<f64>, a2: Vector2<f64>, amplitude: f64) -> Spot {
+pub(super) fn ellipse(
+    centre: (f64, f64),
+    a1: Vector2<f64>,
+    a2: Vector2<f64>,
+    amplitude: f64,
+) -> Spot {
     let svd = Matrix2::from_columns(&[a1, a2]).svd(true, false);
     let u = svd.u.expect("asked for U");
     Spot {
@@ -108,13 +113,13 @@ fn target_spot(
     on_sensor(camera, &spot).then_some(spot)
 }
 
-fn on_sensor(camera: &Camera<f64>, spot: &Spot) -> bool {
+pub(super) fn on_sensor(camera: &Camera<f64>, spot: &Spot) -> bool {
     let m = spot.semi_a + 2.0;
     camera.grid.contains(spot.col - m, spot.row - m)
         && camera.grid.contains(spot.col + m, spot.row + m)
 }
 
-fn scene(camera: &Camera<f64>, spots: Vec<Spot>, spec: &ImageSpec, seed: u64) -> Scene {
+pub(super) fn scene(camera: &Camera<f64>, spots: Vec<Spot>, spec: &ImageSpec, seed: u64) -> Scene {
     let (w, h) = (camera.grid.width as usize, camera.grid.height as usize);
     Scene {
         width: w,

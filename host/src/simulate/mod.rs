@@ -8,6 +8,7 @@
 //! the plate of image k lies at Z ≈ 100 (k − 1)).
 
 pub mod back;
+pub mod back_frames;
 pub mod images;
 pub mod objects;
 pub mod pattern;
@@ -337,11 +338,15 @@ pub fn write_simulation(dir: &Path, sim: &Simulation) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A scenario by name (`paper`, `desk`) or from a TOML file.
+/// The `back` scenario's TOML (`host/scenarios/back.toml`), built in.
+const BACK_TOML: &str = include_str!("../../scenarios/back.toml");
+
+/// A scenario by name (`paper`, `desk`, `back`) or from a TOML file.
 pub fn load_scenario(name_or_path: &str) -> anyhow::Result<Scenario> {
     match name_or_path {
         "paper" => return Ok(Scenario::paper()),
         "desk" => return Ok(Scenario::desk()),
+        "back" => return Scenario::from_toml(BACK_TOML).map_err(|e| anyhow::anyhow!("back: {e}")),
         _ => {}
     }
     let text = std::fs::read_to_string(name_or_path)
@@ -354,28 +359,47 @@ pub fn load_scenario(name_or_path: &str) -> anyhow::Result<Scenario> {
 pub struct Written {
     /// The simulation whose files were written.
     pub simulation: Simulation,
-    /// With images: how many field and plate images, and how many test object frames.
-    pub rendered: Option<(usize, usize)>,
+    /// With images: how many of each were rendered.
+    pub rendered: Option<RenderedCounts>,
+}
+
+/// How many images [`write_scenario`] rendered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RenderedCounts {
+    /// Field and plate images.
+    pub images: usize,
+    /// Test object frames.
+    pub objects: usize,
+    /// Frames of the scenario's back (`images/back/`).
+    pub back: usize,
 }
 
 /// Simulate `scenario` with `seed` into the directory `out`, all or nothing: the observation,
-/// control and truth files ([`write_simulation`]) and, with `images`, the rendered field and plate
-/// images ([`images::write_images`]) and test objects ([`objects::write_objects`]).
+/// control and truth files ([`write_simulation`]), the `extra` files (name, content) and, with
+/// `images`, the rendered field and plate images ([`images::write_images`]), test objects
+/// ([`objects::write_objects`]) and the frames of the scenario's back
+/// ([`back_frames::write_back_frames`]).
 pub fn write_scenario(
     out: &Path,
     scenario: &Scenario,
     seed: u64,
     images: Option<&images::ImageSpec>,
+    extra: &[(&str, &[u8])],
 ) -> anyhow::Result<Written> {
     let simulation = simulate(scenario, seed);
     let rendered = crate::io::atomic::write_dir_all_or_nothing(out, |dir| {
         write_simulation(dir, &simulation)?;
+        for (name, content) in extra {
+            std::fs::write(dir.join(name), content)?;
+        }
         let Some(spec) = images else {
             return Ok(None);
         };
-        let images = images::write_images(scenario, seed, spec, dir)?;
-        let objects = objects::write_objects(scenario, seed, dir)?;
-        Ok(Some((images, objects)))
+        Ok(Some(RenderedCounts {
+            images: images::write_images(scenario, seed, spec, dir)?,
+            objects: objects::write_objects(scenario, seed, dir)?,
+            back: back_frames::write_back_frames(scenario, seed, spec, dir)?,
+        }))
     })?;
     Ok(Written {
         simulation,

@@ -2,6 +2,7 @@
 //! its images, the noise. [`Scenario::paper`] is the paper's set-up.
 
 use crate::io::camera_file::{InnerParams, PoseParams};
+use crate::simulate::back_frames::BackSpec;
 use crate::simulate::pattern::PatternSpec;
 use deltaz_shared::paper::{DC40_GRID, TABLE1_INNER, TABLE2, TABLE3_CAMERA};
 use serde::{Deserialize, Serialize};
@@ -27,6 +28,9 @@ pub struct Scenario {
     pub plate: PlateSpec,
     /// Measurement noise.
     pub noise: NoiseSpec,
+    /// The frames of a back to render with the images (the `back` scenario).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub back: Option<BackSpec>,
 }
 
 /// The camera: raster and true inner orientation.
@@ -171,6 +175,7 @@ impl Scenario {
                 outlier_rate: 0.0,
                 outlier_px: default_outlier_px(),
             },
+            back: None,
         }
     }
 
@@ -215,6 +220,9 @@ impl Scenario {
             (0.0..=1.0).contains(&self.noise.outlier_rate),
             "noise.outlier_rate must lie in 0..1"
         );
+        if let Some(back) = &self.back {
+            back.validate()?;
+        }
         self.check_sizes()
     }
 
@@ -348,6 +356,7 @@ impl Scenario {
                 outlier_rate: 0.0,
                 outlier_px: default_outlier_px(),
             },
+            back: None,
         }
     }
 

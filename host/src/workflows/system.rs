@@ -19,10 +19,10 @@ use super::observations::{identify_images, image_files, DotGrid, IdentifiedImage
 use super::plates::{plate_observations, resect_all};
 use crate::io::camera_file::CameraFile;
 use crate::io::control::ControlPoint;
-use crate::io::system_file::{SystemContent, SystemRig, Warnings};
+use crate::io::system_file::{SystemContent, SystemFile, SystemRig, Warnings};
 use crate::report::residuals::{residuals, Residual};
 use crate::simulate::images::ImageSpec;
-use crate::simulate::{simulate, Scenario};
+use crate::simulate::{simulate, Scenario, Simulation};
 use anyhow::{Context, Result};
 use deltaz_calib::bundle::{Calibration, CalibrationOptions};
 use deltaz_calib::system_adjustment::{
@@ -109,6 +109,32 @@ pub fn calibrate_system(
 ) -> Result<SystemCalibration> {
     let bundle = bundle_field(&grid, start, field, options)?;
     adjust(grid, bundle, plates, noncentral, options.image_sigma_px)
+}
+
+/// The whole chain ([`calibrate_system`]) on a simulation's observations, as `deltaz calibrate
+/// system` runs it on the files `deltaz simulate` writes (default options, central rays).
+pub fn calibrate_simulation(sim: &Simulation) -> Result<SystemCalibration> {
+    calibrate_system(
+        sim.camera_init.grid(),
+        &sim.camera_init.inner(),
+        Targets {
+            path: Path::new("camera_obs.csv"),
+            observations: &sim.camera_obs,
+            control: &sim.camera_control,
+        },
+        Targets {
+            path: Path::new("plate_obs.csv"),
+            observations: &sim.plate_obs,
+            control: &sim.plate_control,
+        },
+        &CalibrationOptions::default(),
+        false,
+    )
+}
+
+/// The text of `system.json` of [`calibrate_simulation`].
+pub fn simulated_system(sim: &Simulation) -> Result<String> {
+    SystemFile::new(calibrate_simulation(sim)?.content)?.to_json()
 }
 
 /// What a user knows besides the images: the sensor and a start for its inner orientation, the

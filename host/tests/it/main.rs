@@ -2,6 +2,7 @@
 mod accuracy;
 mod analyse_cli;
 mod back_accuracy;
+mod back_images;
 mod back_real;
 mod back_real_data;
 mod back_sim;

@@ -4,9 +4,12 @@
 //! folder, a camera that is not there), each shown in its status while it keeps serving. The
 //! helpers here (the fixture, a station process, HTTP) serve the browser test too.
 
-use deltaz_host::simulate::images::true_rig;
-use deltaz_host::simulate::objects::{object_dots, object_frame, plate_depth, Object};
+use deltaz_host::simulate::back::{BackModel, Deformity, Pose};
+use deltaz_host::simulate::back_frames::render_back;
+use deltaz_host::simulate::images::{true_rig, ImageSpec};
+use deltaz_host::simulate::objects::{object_dots, object_frame, Object};
 use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
+use nalgebra::Vector3;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
@@ -15,7 +18,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// The station's fixture: a calibrated system of the paper rig (`system.json`, with its
-/// covariance), frames of a back-like surface (`frames/`), of a flat board (`plane/`) and
+/// covariance), rendered frames of a back (`frames/`), of a flat board (`plane/`) and
 /// black frames without dots (`empty/`), all at the rig's 768 × 512 pixels, and the subject's
 /// depth range (near, far) in mm.
 pub struct Fixture {
@@ -57,7 +60,6 @@ pub fn fixture() -> &'static Fixture {
             String::from_utf8_lossy(&out.stderr)
         );
         let rig = true_rig(&scenario);
-        let depth = plate_depth(&scenario);
         let render = |folder: &str, objects: &[Object]| {
             std::fs::create_dir_all(dir.join(folder)).unwrap();
             for (k, object) in objects.iter().enumerate() {
@@ -67,15 +69,25 @@ pub fn fixture() -> &'static Fixture {
                     .unwrap();
             }
         };
-        let torso: Vec<Object> = (0..6)
-            .map(|k| Object::Torso {
-                depth: depth + 60.0 + 4.0 * f64::from(k % 3),
-            })
-            .collect();
-        render("frames", &torso);
+        // A scoliotic back standing 1.5 m from the camera, swayed a little from frame to frame,
+        // rendered through the paper rig (440 rays: the in-process device holds them).
+        let spec = ImageSpec::default();
+        std::fs::create_dir_all(dir.join("frames")).unwrap();
+        for k in 0..6u32 {
+            let s = f64::from(k % 3) - 1.0;
+            let model = BackModel::standing(Deformity::thoracic()).with_pose(Pose {
+                rotation: Vector3::new(0.0, 0.004 * s, 0.0),
+                translation: Vector3::new(2.0 * s, 0.0, 1.5 * s),
+            });
+            let label = format!("f{k:02}");
+            render_back(&rig, &label, &model, &spec, 100 + u64::from(k))
+                .image
+                .save_png(&dir.join("frames").join(format!("{label}.png")), spec.depth)
+                .unwrap();
+        }
         let plane: Vec<Object> = (0..3)
             .map(|k| Object::Plane {
-                depth: depth + 5.0 * f64::from(k),
+                depth: 1500.0 + 5.0 * f64::from(k),
                 tilt: 0.1,
             })
             .collect();
@@ -88,8 +100,8 @@ pub fn fixture() -> &'static Fixture {
         }
         Fixture {
             dir,
-            near: depth - 150.0,
-            far: depth + 150.0,
+            near: 1420.0,
+            far: 1650.0,
         }
     })
 }
