@@ -112,7 +112,7 @@ fn the_page_shows_live_points_and_surface_and_captures_in_a_real_browser() {
             "args": [
                 "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                format!("--user-data-dir={}", profile.display()), "--window-size=1400,1800",
+                format!("--user-data-dir={}", profile.display()), "--window-size=1400,3200",
             ],
         }),
     );
