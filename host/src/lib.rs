@@ -4,6 +4,7 @@
 //! | layer | modules | what |
 //! |---|---|---|
 //! | commands | [`commands`] | one file per subcommand: its clap arguments and an `exec` that maps files and options to one workflow call |
+//! | station | [`station`] | the operator's station (`deltaz station`): its threads, web server and page, over the workflows |
 //! | workflows | [`workflows`] | the chains, each written once: field → camera, plates → projector, both → system, images → observations, frames → points, the demo |
 //! | libraries | [`io`], [`link`], [`simulate`], [`report`] | file formats, the device link, simulation, reports and plots: free of clap and of the command line |
 //! | crates | `deltaz-calib`, `deltaz-measure`, `deltaz-shared` | the calibration core, image measurement, the camera/projector model and the wire protocol |
@@ -14,4 +15,5 @@ pub mod io;
 pub mod link;
 pub mod report;
 pub mod simulate;
+pub mod station;
 pub mod workflows;

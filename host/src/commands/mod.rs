@@ -20,6 +20,7 @@ mod reconstruct;
 mod resect;
 mod scan;
 mod simulate;
+mod station;
 
 use anyhow::Result;
 
@@ -81,8 +82,13 @@ pub enum Command {
         what: analyse::What,
     },
     /// Timings: camera calibration and the whole-system adjustment of the paper scenario and of
-    /// a large network (with five plates of 440 dots).
+    /// a large network (with five plates of 440 dots); with --station DIR the station's frame
+    /// rate and latency.
     Bench(bench::Args),
+    /// The operator's station: a page in the browser (on this computer) with the live frame and
+    /// its dots, the back's surface as frames arrive, capture of sessions per subject and their
+    /// follow-up, and the calibration's check. Prints the page's address.
+    Station(station::Args),
 }
 
 impl Command {
@@ -103,6 +109,7 @@ impl Command {
             Command::Export { what } => export::exec(what),
             Command::Analyse { what } => analyse::exec(what),
             Command::Bench(args) => bench::exec(args),
+            Command::Station(args) => station::exec(args),
         }
     }
 }

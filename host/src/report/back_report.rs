@@ -105,18 +105,17 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         }
         html += "</table>\n";
     }
+    let (topography, rotation) = surface_figures(a)?;
     let figures = [
         (
             "Topography: the depth of the back, contour lines every 5 mm, the symmetry line in \
              black",
-            map_svg(&a.topography, "depth (mm)", Some(&a.levels), 5.0, false)?,
+            topography,
         ),
         (
             "Surface rotation along the symmetry line (positive: the subject's right side \
              toward the camera), with its ±σ band",
-            profile_svg("surface rotation (°)", &a.levels, |l| {
-                (l.rotation_deg, l.rotation_sigma_deg)
-            })?,
+            rotation,
         ),
         (
             "Lateral deviation of the symmetry line from the line through its ends, with its \
@@ -161,6 +160,18 @@ pub fn report_html(report: &BackReport) -> Result<String> {
     );
     html += ". Written by deltaz.</p>\n</body></html>\n";
     Ok(html)
+}
+
+/// The two figures of a surface at a glance (SVG): the topography (depth colours, contour lines
+/// every 5 mm, the symmetry line) and the surface rotation along the symmetry line with its ±σ
+/// band.
+pub fn surface_figures(a: &BackAnalysis) -> Result<(String, String)> {
+    Ok((
+        map_svg(&a.topography, "depth (mm)", Some(&a.levels), 5.0, false)?,
+        profile_svg("surface rotation (°)", &a.levels, |l| {
+            (l.rotation_deg, l.rotation_sigma_deg)
+        })?,
+    ))
 }
 
 /// The summary measures: name, value, σ, unit (those the analysis has).

@@ -16,10 +16,10 @@ use crate::io::system_file::{SystemFile, SystemFrame, SystemRig};
 use crate::simulate::pattern::ID_STRIDE;
 use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::DotObservation;
-use deltaz_calib::system_adjustment::{Frame as ModelFrame, SystemModel};
+use deltaz_calib::system_adjustment::{Frame as ModelFrame, PointShares, SystemModel};
 use deltaz_shared::rig::Method;
 use deltaz_surface::{analyse, CommonShare, Frame, Options, ScanPoint};
-use nalgebra::{DMatrix, Matrix3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -79,6 +79,35 @@ impl Calibration {
     pub fn fingerprint(&self) -> &str {
         &self.file.fingerprint
     }
+
+    /// The calibration file.
+    pub fn file(&self) -> &SystemFile {
+        &self.file
+    }
+
+    /// The covariance of the calibration's core parameters (the share common to all points).
+    pub fn core_covariance(&self) -> &DMatrix<f64> {
+        &self.model.core_covariance
+    }
+
+    /// The covariance shares of the point the device gave at `point` (camera system) for ray
+    /// `id`: the point projected back to its dot's pixel, then [`SystemModel::reconstruct_shares`].
+    pub fn shares(&self, id: u16, point: &Vector3<f64>) -> Result<PointShares> {
+        let (col, row) = self
+            .rig
+            .pixel_of_centred(&(point - self.rig.camera_centre()))
+            .map_err(|e| anyhow::anyhow!("ray {id}: {e}"))?;
+        let dot = DotObservation { id, col, row };
+        self.model
+            .reconstruct_shares(
+                &self.split,
+                self.rig.grid(),
+                &dot,
+                Method::ClosestApproach,
+                ModelFrame::Camera,
+            )
+            .map_err(|e| anyhow::anyhow!("ray {id}: {e}"))
+    }
 }
 
 /// A ray's node (column, row) in the projector's lattice (ids are row · [`ID_STRIDE`] + col).
@@ -132,7 +161,8 @@ pub fn cloud_frames(
     split
         .into_values()
         .map(|vertices| match calibration {
-            Some(c) => with_calibration(path, cloud, &vertices, c),
+            Some(c) => with_calibration(&vertices, cloud.centroid_step_px, c)
+                .with_context(|| path.display().to_string()),
             None => with_own_sigma(path, &vertices),
         })
         .collect()
@@ -184,39 +214,22 @@ fn with_own_sigma(path: &Path, vertices: &[crate::io::ply::Vertex]) -> Result<Fr
     Ok(Frame::new(points))
 }
 
-fn with_calibration(
-    path: &Path,
-    cloud: &Cloud,
+/// A frame of `vertices` (camera system, each with its ray) with each point's covariance from
+/// the calibration `c`; `centroid_step_px`: the step the device quantised the centroids to.
+pub fn with_calibration(
     vertices: &[crate::io::ply::Vertex],
+    centroid_step_px: Option<f64>,
     c: &Calibration,
 ) -> Result<Frame> {
-    let grid = c.rig.grid();
     // Device clouds: each centroid was quantised to a step q on the wire (variance q²/12).
     let s2 = c.model.sigma_dots_px.powi(2);
-    let quantised = cloud
-        .centroid_step_px
-        .map_or(1.0, |q| (s2 + q * q / 12.0) / s2);
+    let quantised = centroid_step_px.map_or(1.0, |q| (s2 + q * q / 12.0) / s2);
     let k = c.model.core_covariance.nrows();
     let mut sensitivity = DMatrix::zeros(3 * vertices.len(), k);
     let mut points = Vec::with_capacity(vertices.len());
     for (i, v) in vertices.iter().enumerate() {
         let id = v.ray.unwrap_or_default();
-        let at = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: ray {id}: {e}", path.display());
-        let (col, row) = c
-            .rig
-            .pixel_of_centred(&(v.point - c.rig.camera_centre()))
-            .map_err(|e| at(&e))?;
-        let dot = DotObservation { id, col, row };
-        let shares = c
-            .model
-            .reconstruct_shares(
-                &c.split,
-                grid,
-                &dot,
-                Method::ClosestApproach,
-                ModelFrame::Camera,
-            )
-            .map_err(|e| at(&e))?;
+        let shares = c.shares(id, &v.point)?;
         sensitivity
             .view_mut((3 * i, 0), (3, k))
             .copy_from(&shares.common);
@@ -244,25 +257,29 @@ pub fn analyse_clouds(
     system: Option<&Path>,
     options: &Options,
 ) -> Result<BackReport> {
+    let calibration = system.map(Calibration::load).transpose()?;
+    analyse_with(paths, calibration.as_ref(), options)
+}
+
+/// [`analyse_clouds`] with the calibration loaded.
+pub fn analyse_with(
+    paths: &[PathBuf],
+    calibration: Option<&Calibration>,
+    options: &Options,
+) -> Result<BackReport> {
     if paths.is_empty() {
         bail!("give at least one --cloud");
     }
-    let calibration = system.map(Calibration::load).transpose()?;
-    let frames = frames(paths, calibration.as_ref())?;
+    let frames = frames(paths, calibration)?;
     let analysis = analyse(&frames, options).map_err(|e| {
         let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
         anyhow::anyhow!("{}: {e}", names.join(", "))
     })?;
-    let fingerprint = match &calibration {
+    let fingerprint = match calibration {
         Some(c) => Some(c.fingerprint().to_owned()),
         None => read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint),
     };
-    Ok(back_report(
-        paths,
-        calibration.as_ref(),
-        fingerprint,
-        analysis,
-    ))
+    Ok(back_report(paths, calibration, fingerprint, analysis))
 }
 
 /// The report of an analysis of the clouds at `paths` (what `analysis.json` holds): the

@@ -208,19 +208,7 @@ pub fn scan(
             for i in 0..count {
                 let began = Instant::now();
                 let measured = load(i).and_then(|(label, image)| {
-                    let (size, m) = match &image {
-                        LoadedImage::Eight(b) => (b.dimensions(), measure(&view(b, 1.0), params)),
-                        LoadedImage::Sixteen(b) => {
-                            (b.dimensions(), measure(&view(b, 257.0), params))
-                        }
-                    };
-                    if size != sensor {
-                        bail!(
-                            "frame {label}: the image is {} × {} pixels, the calibration's sensor {} × {}",
-                            size.0, size.1, sensor.0, sensor.1
-                        );
-                    }
-                    let dots: Vec<(f64, f64)> = m.targets.iter().map(|t| (t.col, t.row)).collect();
+                    let dots = measure_dots(sensor, params, &label, &image)?;
                     Ok((label, dots))
                 });
                 let failed = measured.is_err();
@@ -250,6 +238,30 @@ pub fn scan(
     stats.elapsed = start.elapsed();
     stats.mean_latency = latency / stats.frames.max(1) as u32;
     Ok(stats)
+}
+
+/// The dots `(col, row)` measured in frame `label`, whose image must have the calibration's
+/// `sensor` size (width, height).
+pub fn measure_dots(
+    sensor: (u32, u32),
+    params: &MeasureParams,
+    label: &str,
+    image: &LoadedImage,
+) -> Result<Vec<(f64, f64)>> {
+    let (size, m) = match image {
+        LoadedImage::Eight(b) => (b.dimensions(), measure(&view(b, 1.0), params)),
+        LoadedImage::Sixteen(b) => (b.dimensions(), measure(&view(b, 257.0), params)),
+    };
+    if size != sensor {
+        bail!(
+            "frame {label}: the image is {} × {} pixels, the calibration's sensor {} × {}",
+            size.0,
+            size.1,
+            sensor.0,
+            sensor.1
+        );
+    }
+    Ok(m.targets.iter().map(|t| (t.col, t.row)).collect())
 }
 
 fn view<P: image::Primitive>(

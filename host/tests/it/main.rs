@@ -40,4 +40,6 @@ mod resection_survey;
 mod residuals_cli;
 mod scan;
 mod simulate_images;
+mod station;
+mod station_browser;
 mod system;

@@ -1,8 +1,8 @@
 //! The modules' import graph of every crate: no import circles (a module reaching itself through
 //! the `crate::`, `super::`, `self::` and child-module paths of its code, the tests at its foot
 //! left out; a parent's paths into its own children are its tree, not imports), and in the host,
-//! imports only downwards through its layers: commands → workflows → libraries (`io`, `link`,
-//! `simulate`, `report`).
+//! imports only downwards through its layers: commands → the station → workflows → libraries
+//! (`io`, `link`, `simulate`, `report`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -11,8 +11,9 @@ use std::path::{Path, PathBuf};
 const CRATES: [&str; 6] = ["shared", "firmware", "calib", "measure", "surface", "host"];
 
 /// The host's layers, highest first: a module may import its own layer and those below.
-const HOST_LAYERS: [&[&str]; 3] = [
+const HOST_LAYERS: [&[&str]; 4] = [
     &["commands"],
+    &["station"],
     &["workflows"],
     &["io", "link", "simulate", "report"],
 ];
