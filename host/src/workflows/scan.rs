@@ -140,21 +140,15 @@ fn on_sensor(rig: &SystemRig, dots: &[(f64, f64)]) -> Vec<(f64, f64)> {
 
 /// Identification and intersection by the device (Identify requests, f32 on the device): it
 /// must hold `rig`'s calibration with identification parameters. Dots off `rig`'s sensor are
-/// rejected before they are sent (the device would reject them too). At most `MAX_BATCH` dots
-/// a frame.
+/// rejected before they are sent (the device would reject them too). A frame of more than
+/// `MAX_BATCH` dots goes in several requests, its conflicts found across all of them.
 pub fn on_device<'a, T: crate::link::Transport>(
     rig: &'a SystemRig,
     device: &'a mut crate::link::Device<T>,
 ) -> impl FnMut(&[(f64, f64)]) -> Result<Identified> + 'a {
-    use deltaz_shared::protocol::{PointStatus, MAX_BATCH};
+    use deltaz_shared::protocol::PointStatus;
     move |dots| {
         let on = on_sensor(rig, dots);
-        if on.len() > MAX_BATCH {
-            bail!(
-                "{} dots, the device identifies at most {MAX_BATCH} per frame",
-                on.len()
-            );
-        }
         let mut out = Identified {
             off_sensor: dots.len() - on.len(),
             ..Identified::default()

@@ -5,22 +5,21 @@
 //! calibration and analyses the points with their covariance (image noise, each ray's own
 //! error and the calibration's common share) against the model's truth.
 //!
-//! The device stage: the device on this branch holds 512 rays (`MAX_RAYS`), fewer than the back
-//! rig's 1,225, so the draws identify and intersect on the host (`scan::on_host`, equal to the
-//! device path by `scan::device_scan_equals_host_scan`); [`identify_and_intersect`] is the one
-//! place that chooses it.
+//! The device stage: the firmware's logic in this process ([`Device::in_process`]), holding the
+//! draw's calibration with the identification over the rig's working depth; its points carry
+//! the wire's centroid quantisation, which their covariance includes.
 
 use crate::back_sim::IndexErrors;
 use deltaz_host::io::system_file::SystemFile;
+use deltaz_host::link::{centroid_step_px, Device};
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_host::simulate::back_frames::render_backs;
 use deltaz_host::simulate::images::{true_rig, ImageSpec};
 use deltaz_host::simulate::{load_scenario, simulate, Scenario};
 use deltaz_host::workflows::back::Calibration;
 use deltaz_host::workflows::back_scan::scan_back;
-use deltaz_host::workflows::scan::on_host;
+use deltaz_host::workflows::scan::{identify_params, on_device};
 use deltaz_host::workflows::system::calibrate_simulation;
-use deltaz_measure::{host_identifier, HostIdentifier};
 use deltaz_shared::identify::DepthRange;
 use deltaz_shared::rig::Method;
 use deltaz_surface::{BackAnalysis, Options};
@@ -34,10 +33,14 @@ const DRAWS: u64 = 30;
 /// Identification tolerance (px).
 const TOLERANCE_PX: f64 = 1.0;
 
-/// One draw's calibration and its identifier.
+/// Identification's lookup cell (px): the device's grid grows from it until it fits.
+const CELL_PX: f64 = 32.0;
+
+/// One draw's calibration and the identification over the working depth.
 struct Draw {
     calibration: Calibration,
-    identifier: Box<HostIdentifier>,
+    fingerprint: u64,
+    depth: DepthRange<f64>,
 }
 
 fn scenario() -> Scenario {
@@ -56,12 +59,12 @@ fn draws() -> &'static [Draw] {
                 let system = calibrate_simulation(&simulate(&s, 1800 + k)).unwrap();
                 let rig = system.content.rig().unwrap();
                 let file = SystemFile::new(system.content).unwrap();
-                let identifier =
-                    host_identifier(&rig, DepthRange { near, far }, TOLERANCE_PX, 16.0).unwrap();
+                let fingerprint = file.fingerprint_u64().unwrap();
                 let calibration = Calibration::new(file, rig, Path::new("system.json")).unwrap();
                 Draw {
                     calibration,
-                    identifier,
+                    fingerprint,
+                    depth: DepthRange { near, far },
                 }
             })
             .collect()
@@ -87,8 +90,7 @@ fn scanned(draw: &Draw, k: u64, models: &[BackModel], options: &Options) -> Back
     identify_and_intersect(draw, name, &images, options)
 }
 
-/// The device stage of the path: on the host (see the module's docs); with a device that holds
-/// the back rig, `on_device(rig, &mut device)` with the device's centroid step in its place.
+/// The device stage of the path: an in-process device holding the draw's calibration.
 fn identify_and_intersect(
     draw: &Draw,
     name: &str,
@@ -96,10 +98,28 @@ fn identify_and_intersect(
     options: &Options,
 ) -> BackAnalysis {
     let rig = draw.calibration.rig();
-    let identify = on_host(rig, &draw.identifier, Method::ClosestApproach);
-    scan_back(name, &draw.calibration, images, identify, None, options)
-        .unwrap_or_else(|e| panic!("{name}: {e:#}"))
-        .analysis
+    let mut device = Device::in_process();
+    device
+        .upload_identifying(
+            rig,
+            draw.fingerprint,
+            Method::ClosestApproach,
+            Some(identify_params(draw.depth, TOLERANCE_PX, CELL_PX)),
+        )
+        .unwrap_or_else(|e| panic!("{name}: upload: {e}"));
+    let grid = rig.grid();
+    let step = centroid_step_px(grid.width, grid.height);
+    let identify = on_device(rig, &mut device);
+    scan_back(
+        name,
+        &draw.calibration,
+        images,
+        identify,
+        Some(step),
+        options,
+    )
+    .unwrap_or_else(|e| panic!("{name}: {e:#}"))
+    .analysis
 }
 
 /// Every draw of `models` (frame 0's truth), on one thread per core: not rayon's, since a

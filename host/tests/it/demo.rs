@@ -120,8 +120,8 @@ fn demo_from_images() {
     back_scanned(&out, &report["back"], &stdout);
 }
 
-/// The demo's scoliotic back, three frames through the device with the back rig cut to 506
-/// rays: analysed over its length, its largest surface rotation within 1° of the truth's, the
+/// The demo's scoliotic back, three frames through the device with the `back` scenario's rig
+/// (1,225 rays): analysed over its length, its largest surface rotation within 1° of the truth's, the
 /// report and analysis written as `analyse back` writes them.
 fn back_scanned(out: &std::path::Path, back: &serde_json::Value, stdout: &str) {
     let num = |v: &serde_json::Value| v.as_f64().unwrap();

@@ -1,8 +1,7 @@
 //! The demo's back: a scoliotic back (a right thoracic curve, three frames standing, each
-//! swayed by a few mm and about a degree) seen by the largest back rig the device holds
-//! ([`device_back_scenario`]: the `back` scenario's rig cut to 22 × 23 = 506 dots, 26 mm apart
-//! on the back; the device holds at most `MAX_RAYS` = 512 rays, fewer than the full rig's
-//! 1,225), calibrated as `calibrate system` calibrates it from its simulated field and plates,
+//! swayed by a few mm and about a degree) seen by the `back` scenario's rig (1,225 dots, 20 mm
+//! apart on the back, identified over its working depth of 1,250-1,750 mm), calibrated as
+//! `calibrate system` calibrates it from its simulated field and plates,
 //! uploaded to the device, rendered (`out/images/back/`), scanned through the device, its points'
 //! covariance from that calibration, and analysed: `report.html`, `analysis.json`, `back.ply`
 //! and the rig's `back_system.json` in `out/`.
@@ -17,7 +16,7 @@ use crate::link::{Device, Transport};
 use crate::simulate::back::{BackModel, Deformity, Pose};
 use crate::simulate::back_frames::render_backs;
 use crate::simulate::images::{true_rig, ImageSpec};
-use crate::simulate::{load_scenario, simulate, Scenario};
+use crate::simulate::{load_scenario, simulate};
 use anyhow::{Context, Result};
 use deltaz_shared::identify::DepthRange;
 use deltaz_shared::rig::Method;
@@ -25,38 +24,9 @@ use deltaz_surface::Options;
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 
-/// The device-sized back rig's dot spacing on the back relative to the full rig's 20 mm.
-const SPACING_SCALE: f64 = 1.3;
-/// Its identification depth range (mm): the back at 1.5 m, arms and sway included.
-const DEPTH_RANGE: [f64; 2] = [1400.0, 1650.0];
-/// The identifier's lookup cell (px): 40 × 32 cells over the 1,280 × 1,024 sensor, within the
-/// device's 2,048.
+/// The identifier's lookup cell (px) over the 1,280 × 1,024 sensor: the device's grid grows
+/// from it until it fits.
 const LOOKUP_CELL_PX: f64 = 32.0;
-
-/// The `back` scenario with its pattern cut to 22 × 23 dots (506 rays, what the device holds)
-/// spread to 26 mm apart on the back, about the same centre and turned as the full rig's.
-pub fn device_back_scenario() -> Result<Scenario> {
-    let mut s = load_scenario("back")?;
-    s.name = "back-device".into();
-    let p = &mut s.rig.pattern;
-    let (cols, rows) = (22u16, 23u16);
-    let centre = |p: &crate::simulate::pattern::PatternSpec, k: usize| {
-        p.origin[k]
-            + p.col_step[k] * f64::from(p.cols - 1) / 2.0
-            + p.row_step[k] * f64::from(p.rows - 1) / 2.0
-    };
-    let middle = [centre(p, 0), centre(p, 1)];
-    p.col_step = p.col_step.map(|x| x * SPACING_SCALE);
-    p.row_step = p.row_step.map(|x| x * SPACING_SCALE);
-    (p.cols, p.rows) = (cols, rows);
-    for (k, m) in middle.iter().enumerate() {
-        p.origin[k] = m
-            - p.col_step[k] * f64::from(cols - 1) / 2.0
-            - p.row_step[k] * f64::from(rows - 1) / 2.0;
-    }
-    s.validate()?;
-    Ok(s)
-}
 
 /// The demo's subject: the thoracic curve standing `distance` from the camera, three frames.
 pub fn subject(distance: f64) -> Vec<(String, BackModel)> {
@@ -87,24 +57,28 @@ pub struct DemoBack {
     pub report: BackReport,
     /// The subject's frames (the truth).
     pub models: Vec<BackModel>,
-    /// The device-sized back rig's calibration (`back_system.json`).
+    /// The back rig's calibration (`back_system.json`).
     pub system: SystemFile,
 }
 
-/// Calibrate [`device_back_scenario`] (seeded by `seed`), upload it to `device` with the
-/// identification over [`DEPTH_RANGE`], render [`subject`] through its true rig into
+/// Calibrate the `back` scenario (seeded by `seed`), upload it to `device` with the
+/// identification over the scenario's working depth, render [`subject`] through its true rig into
 /// `images/back/`, scan it through the device and analyse it.
 pub fn scan_demo_back<T: Transport>(
     images: &Path,
     (spec, seed): (&ImageSpec, u64),
     device: &mut Device<T>,
 ) -> Result<DemoBack> {
-    let scenario = device_back_scenario()?;
-    let calibrated = calibrate_simulation(&simulate(&scenario, seed))
-        .context("calibrating the device-sized back rig")?;
+    let scenario = load_scenario("back")?;
+    let back = scenario
+        .back
+        .as_ref()
+        .context("the `back` scenario has no [back] section")?;
+    let calibrated =
+        calibrate_simulation(&simulate(&scenario, seed)).context("calibrating the back rig")?;
     let rig = calibrated.content.rig()?;
     let system = SystemFile::new(calibrated.content)?;
-    let [near, far] = DEPTH_RANGE;
+    let [near, far] = back.depth_range;
     device
         .upload_identifying(
             &rig,
@@ -117,8 +91,8 @@ pub fn scan_demo_back<T: Transport>(
             )),
         )
         .map_err(|e| anyhow::anyhow!("uploading the back rig: {e}"))?;
-    let labelled = subject(scenario.back.as_ref().map_or(1500.0, |b| b.distance));
-    let skin = scenario.back.as_ref().map_or(*spec, |b| b.image_spec(spec));
+    let labelled = subject(back.distance);
+    let skin = back.image_spec(spec);
     let frames = render_backs(&true_rig(&scenario), &labelled, &skin, seed);
     let dir = images.join("back");
     std::fs::create_dir_all(&dir)?;
