@@ -8,7 +8,7 @@ use crate::report::console::Output;
 use anyhow::{bail, Context, Result};
 use deltaz_firmware::server::IN_FLIGHT_BYTES;
 use deltaz_shared::protocol::calibration::IdentifyParams;
-use deltaz_shared::protocol::{CalibrationSummary, ErrorCode, MAX_NONCENTRAL_RAYS, MAX_RAYS};
+use deltaz_shared::protocol::{CalibrationSummary, MAX_NONCENTRAL_RAYS, MAX_RAYS};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -173,14 +173,9 @@ pub fn upload_to(
     method: Method,
     identification: Option<IdentifyParams>,
 ) -> Result<CalibrationSummary> {
-    let s = match device.upload_identifying(rig, fingerprint, method, identification) {
-        Ok(s) => s,
-        Err(e @ DeviceError::Device(ErrorCode::IdentifierCapacity)) => {
-            let fits = identification.map_or_else(String::new, |p| what_fits(rig, method, p));
-            bail!("uploading {}: {e}{fits}", system.display());
-        }
-        Err(e) => return Err(e).with_context(|| format!("uploading {}", system.display())),
-    };
+    let s = device
+        .upload_identifying(rig, fingerprint, method, identification)
+        .with_context(|| format!("uploading {}", system.display()))?;
     link.output.status(format!(
         "uploaded {} ({} rays): fingerprint {:016x} read back, generation {}",
         system.display(),
@@ -189,50 +184,6 @@ pub fn upload_to(
         s.generation
     ));
     Ok(s)
-}
-
-/// What the device's lookup grid would hold when `refused` needs a larger one: the smallest of
-/// 1.5 to 16 times the cell (`--identify-cell`, the range kept) and the widest of 3/4 to 1/8 of
-/// the depth range from `--near` (`--far`, the cell kept) that the firmware's logic accepts,
-/// tried in-process; as the end of the refusal's message.
-fn what_fits(rig: &SystemRig, method: Method, refused: IdentifyParams) -> String {
-    let accepts = |p: IdentifyParams| {
-        let mut probe = Device::new(Box::new(InProcess::new()) as Box<dyn Transport>);
-        probe.upload_identifying(rig, 0, method, Some(p)).is_ok()
-    };
-    let cell = [1.5_f32, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0]
-        .into_iter()
-        .map(|k| IdentifyParams {
-            cell: (refused.cell * k).ceil(),
-            ..refused
-        })
-        .find(|p| accepts(*p));
-    let range = [0.75_f32, 0.5, 0.25, 0.125]
-        .into_iter()
-        .map(|k| IdentifyParams {
-            far: (refused.near + k * (refused.far - refused.near)).floor(),
-            ..refused
-        })
-        .find(|p| p.far > p.near && accepts(*p));
-    let mut fits: Vec<String> = Vec::new();
-    if let Some(p) = cell {
-        fits.push(format!("--identify-cell {} (the depth range kept)", p.cell));
-    }
-    if let Some(p) = range {
-        fits.push(format!(
-            "a narrower depth range, --near {} --far {} (the cell kept)",
-            p.near, p.far
-        ));
-    }
-    if fits.is_empty() {
-        format!(
-            "; neither --identify-cell up to {} nor an eighth of the depth range fits: a \
-             smaller --identify-tolerance or fewer rays",
-            (refused.cell * 16.0).ceil()
-        )
-    } else {
-        format!("; what fits: {}", fits.join(", or "))
-    }
 }
 
 /// Check that `device` holds the calibration (`rig` with `fingerprint`) loaded from `system`;
