@@ -113,7 +113,7 @@ impl Active {
         }
         let (col, row) = dot.pixel::<f32>(bits);
         match rig.reconstruct_from(cursor, id, col, row, self.method) {
-            Ok(hit) => PointResult::from_camera_centred(&hit.point, hit.miss),
+            Ok(hit) => PointResult::from_depth(rig.depth_of(&hit)),
             Err(e) => PointResult::from_error(e),
         }
     }
@@ -540,6 +540,7 @@ fn checked(header: CalibrationHeader, rays: &Rays) -> Option<Active> {
         rays: count as u16,
         centroid_bits: centroid_fraction_bits(grid.width, grid.height),
         camera_centre,
+        method,
     };
     Some(Active {
         grid,

@@ -91,6 +91,47 @@ pub fn closest_approach<T: RealField + Copy>(
     Ok(average(camera, projector, lambda, lambda_p))
 }
 
+/// The paper's intersection given λ (a device's answer): λp from the X and Z equations of
+/// eqs (5), (6) in the least-squares sense, which is eq. (9)'s λp when λ is eq. (8)'s.
+pub fn paper_at<T: RealField + Copy>(
+    camera: &Ray<T>,
+    projector: &Ray<T>,
+    lambda: T,
+) -> Result<Intersection<T>> {
+    let (l, n) = (projector.direction.x, projector.direction.z);
+    let d = camera.at(lambda) - projector.point;
+    let ln2 = l * l + n * n;
+    if !exceeds(ln2, T::zero()) {
+        return Err(Error::DegenerateXZ);
+    }
+    Ok(average(
+        camera,
+        projector,
+        lambda,
+        (d.x * l + d.z * n) / ln2,
+    ))
+}
+
+/// The closest approach given λ (a device's answer): λp of the projector ray's point nearest
+/// the camera ray's point at λ, which is the common perpendicular's foot when λ is its.
+pub fn closest_approach_at<T: RealField + Copy>(
+    camera: &Ray<T>,
+    projector: &Ray<T>,
+    lambda: T,
+) -> Result<Intersection<T>> {
+    let p2 = projector.direction.norm_squared();
+    if !exceeds(p2, T::zero()) {
+        return Err(Error::DegenerateGeometry);
+    }
+    let d = camera.at(lambda) - projector.point;
+    Ok(average(
+        camera,
+        projector,
+        lambda,
+        d.dot(&projector.direction) / p2,
+    ))
+}
+
 fn average<T: RealField + Copy>(
     camera: &Ray<T>,
     projector: &Ray<T>,

@@ -8,7 +8,9 @@
 
 use crate::camera::{InnerOrientation, PixelGrid};
 use crate::collinearity::{camera_ray_direction, project_camera_point, ExteriorOrientation};
-use crate::intersection::{closest_approach, intersect_paper, Intersection};
+use crate::intersection::{
+    closest_approach, closest_approach_at, intersect_paper, paper_at, Intersection,
+};
 use crate::projector::{Projector, ProjectorRay, Ray, RayCursor, RayStore};
 use crate::{Error, Result};
 use nalgebra::{Matrix3, RealField, Vector3};
@@ -180,6 +182,36 @@ impl<T: RealField + Copy, S: RayStore<T>> Rig<T, S> {
         };
         hit.point += self.camera_centre;
         Ok(hit)
+    }
+
+    /// [`Rig::reconstruct`] given the depth of the point (mm in front of the camera along its
+    /// axis, λ·f of eqs 6-7: a device's answer, see
+    /// [`crate::protocol::PointResult`]): λ = depth / f on the camera ray through (col, row),
+    /// λp and the point from it by `method` ([`paper_at`], [`closest_approach_at`]), which
+    /// is [`Rig::reconstruct`]'s point and miss distance when the depth is its.
+    pub fn reconstruct_at_depth(
+        &self,
+        id: u16,
+        col: T,
+        row: T,
+        depth: T,
+        method: Method,
+    ) -> Result<Intersection<T>> {
+        let projector = self.projector.ray(id)?;
+        let camera = self.camera_ray(col, row);
+        let lambda = depth / self.inner.f;
+        let mut hit = match method {
+            Method::Paper => paper_at(&camera, &projector, lambda)?,
+            Method::ClosestApproach => closest_approach_at(&camera, &projector, lambda)?,
+        };
+        hit.point += self.camera_centre;
+        Ok(hit)
+    }
+
+    /// The depth of an intersection with this rig's camera ray (mm in front of the camera along
+    /// its axis): λ·f (eqs 6-7: −z of the camera system is λ·f).
+    pub fn depth_of(&self, hit: &Intersection<T>) -> T {
+        hit.lambda * self.inner.f
     }
 }
 

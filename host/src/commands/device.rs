@@ -89,8 +89,8 @@ enum What {
     /// progress bar; says what became of every dot sent: a point, not identified, or no point,
     /// each by reason.
     Stream {
-        /// The system the device must hold (uploaded first to an in-process or QEMU device);
-        /// needed for --out and --csv, whose points are in its frame.
+        /// The system the device must hold (uploaded first to an in-process or QEMU device):
+        /// the host places the device's points with it, in its frame.
         #[arg(long)]
         system: Option<PathBuf>,
         /// Observations CSV `image,point,col,row[,kind]` (dot rows; point = ray id).
@@ -105,8 +105,7 @@ enum What {
         /// point's frame).
         #[arg(long, requires = "system")]
         out: Option<PathBuf>,
-        /// Output CSV `image,point,X,Y,Z,miss,saturated` (mm, the system's frame; saturated =
-        /// 1: the device's miss distance is at its wire limit, a lower bound).
+        /// Output CSV `image,point,X,Y,Z,miss` (mm, the system's frame).
         #[arg(long, requires = "system")]
         csv: Option<PathBuf>,
         /// Intersection on the device when uploading.

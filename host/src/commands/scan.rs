@@ -2,7 +2,6 @@
 
 use super::args::{MethodArg, OutputArgs};
 use super::device::DeviceOpts;
-use crate::link::miss_saturated_mm;
 use crate::report::console::Output;
 use crate::workflows::scan::{frame_files, scan_command, ScanArgs, ScanOn};
 use anyhow::Result;
@@ -32,8 +31,7 @@ pub struct Args {
     /// One PLY OUT/scan.ply of all frames, each point with its `frame` index.
     #[arg(long)]
     one_file: bool,
-    /// Also a CSV `frame,image,point,X,Y,Z,miss,saturated` of all frames (saturated = 1:
-    /// the device's miss distance is at its wire limit, a lower bound).
+    /// Also a CSV `frame,image,point,X,Y,Z,miss` of all frames.
     #[arg(long)]
     csv: Option<PathBuf>,
     /// Intersection: eqs (8)-(9) (`paper`) or the closest approach (`closest`).
@@ -77,22 +75,14 @@ pub fn exec(args: Args) -> Result<()> {
         on,
         quiet: output.quiet,
     })?;
-    if stats.saturated > 0 {
-        eprintln!(
-            "warning: {} points have the device's saturated miss distance (≥ {:.3} mm, a lower bound): flagged in the CSV's `saturated` column",
-            stats.saturated,
-            miss_saturated_mm()
-        );
-    }
     let text = format!(
-        "{} frames, {} points in {:.2} s ({:.1} frames/s, latency {:.1} ms), {} dots off the sensor rejected, {} saturated miss distances, in {} -> {}\n",
+        "{} frames, {} points in {:.2} s ({:.1} frames/s, latency {:.1} ms), {} dots off the sensor rejected, in {} -> {}\n",
         stats.frames,
         stats.points,
         stats.elapsed.as_secs_f64(),
         stats.frames_per_second(),
         stats.mean_latency.as_secs_f64() * 1e3,
         stats.off_sensor,
-        stats.saturated,
         frame,
         args.out.display()
     );
@@ -103,7 +93,6 @@ pub fn exec(args: Args) -> Result<()> {
         "frames_per_s": stats.frames_per_second(),
         "mean_latency_ms": stats.mean_latency.as_secs_f64() * 1e3,
         "off_sensor": stats.off_sensor,
-        "saturated_miss": stats.saturated,
         "frame": frame,
         "out": args.out,
     });

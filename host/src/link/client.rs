@@ -3,7 +3,7 @@
 use super::calibration::calibration_blob_identifying;
 use super::in_process::InProcess;
 use super::Transport;
-use deltaz_shared::projector::ProjectorRay;
+use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::frame::CRC;
 use deltaz_shared::protocol::{
@@ -14,6 +14,7 @@ use deltaz_shared::protocol::{
 use deltaz_shared::rig::{Method, Rig};
 use nalgebra::Vector3;
 use std::io;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// How long a request waits for its response by default (per try).
@@ -72,6 +73,9 @@ pub enum DeviceError {
     Centroid(usize),
     /// The rig cannot be encoded for the device.
     Calibration(&'static str),
+    /// The device's points asked for, but the host does not hold the device's calibration to
+    /// place them with (see [`Device::expect_system`]).
+    NotHeld(u64),
 }
 
 impl std::fmt::Display for DeviceError {
@@ -111,6 +115,11 @@ impl std::fmt::Display for DeviceError {
             DeviceError::NoCalibration => write!(f, "the device holds no calibration"),
             DeviceError::Centroid(i) => write!(f, "centroid {i} lies off the sensor"),
             DeviceError::Calibration(why) => write!(f, "cannot upload the calibration: {why}"),
+            DeviceError::NotHeld(fingerprint) => write!(
+                f,
+                "the host places the device's points with the device's calibration \
+                 ({fingerprint:016x}) and was not given it: give its system file"
+            ),
         }
     }
 }
@@ -129,11 +138,15 @@ pub type Result<T> = std::result::Result<T, DeviceError>;
 /// A point from the device in world coordinates (mm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WorldPoint {
-    /// The point: the device's camera-centred point plus the camera centre (in f64).
+    /// The point: placed in f64 on the camera ray at the device's depth
+    /// ([`Rig::reconstruct_at_depth`]).
     pub point: Vector3<f64>,
-    /// The rays' miss distance (mm, a lower bound at 0.93 mm and above).
+    /// The rays' miss distance (mm).
     pub miss: f64,
 }
+
+/// A calibration as the host holds it, in f64: what the device's depths are placed with.
+pub type HostRig = Rig<f64, Vec<ProjectorRay<f64>>>;
 
 /// A device behind a transport.
 pub struct Device<T> {
@@ -146,6 +159,8 @@ pub struct Device<T> {
     drained: bool,
     pending: Vec<u8>,
     calibration: Option<CalibrationSummary>,
+    /// The calibration the host holds for the device, by fingerprint.
+    held: Option<(u64, Arc<HostRig>)>,
     sent: u64,
     received: u64,
     line: LineCounts,
@@ -198,6 +213,7 @@ impl<T: Transport> Device<T> {
             drained: false,
             pending: Vec::new(),
             calibration: None,
+            held: None,
             sent: 0,
             received: 0,
             line: LineCounts::default(),
@@ -263,6 +279,32 @@ impl<T: Transport> Device<T> {
         }
     }
 
+    /// [`Device::expect_calibration`], and the host holds `rig` (that calibration, in f64) to
+    /// place the device's points with: a device that already holds the calibration.
+    pub fn expect_system<S: AsRef<[ProjectorRay<f64>]>>(
+        &mut self,
+        rig: &Rig<f64, S>,
+        fingerprint: u64,
+    ) -> Result<CalibrationSummary> {
+        let summary = self.expect_calibration(fingerprint)?;
+        self.hold(rig, fingerprint);
+        Ok(summary)
+    }
+
+    /// Hold `rig` as the calibration of `fingerprint`.
+    fn hold<S: AsRef<[ProjectorRay<f64>]>>(&mut self, rig: &Rig<f64, S>, fingerprint: u64) {
+        let p = rig.projector_centred();
+        let projector = Projector::from_checked(p.centre(), p.rays().to_vec());
+        let held = Rig::from_centred(
+            *rig.grid(),
+            *rig.inner(),
+            *rig.r_cam_world(),
+            rig.camera_centre(),
+            projector,
+        );
+        self.held = Some((fingerprint, Arc::new(held)));
+    }
+
     /// Upload `rig` with the closest-approach intersection (see [`Device::upload_with`]).
     pub fn upload<S: AsRef<[ProjectorRay<f64>]>>(
         &mut self,
@@ -294,7 +336,9 @@ impl<T: Transport> Device<T> {
     ) -> Result<CalibrationSummary> {
         let blob = calibration_blob_identifying(rig, fingerprint, method, identification)
             .map_err(DeviceError::Calibration)?;
-        self.upload_blob(&blob, fingerprint)
+        let summary = self.upload_blob(&blob, fingerprint)?;
+        self.hold(rig, fingerprint);
+        Ok(summary)
     }
 
     /// Upload a calibration blob in chunks, retried when the device reports a CRC failure, and
@@ -349,7 +393,7 @@ impl<T: Transport> Device<T> {
         &mut self,
         frames: &[F],
     ) -> Result<Vec<Vec<PointOutcome>>> {
-        let calibration = self.calibration()?;
+        let (calibration, rig) = self.placing()?;
         let mut orders = Vec::with_capacity(frames.len());
         let mut requests = Vec::with_capacity(frames.len());
         let mut first = 0;
@@ -375,15 +419,20 @@ impl<T: Transport> Device<T> {
         let mut out: Vec<Vec<PointOutcome>> = Vec::with_capacity(frames.len());
         out.resize_with(frames.len(), Vec::new);
         let mut fingerprints = Vec::new();
+        let sent = requests.clone();
         self.pipeline(requests, |k, body| match body {
             ResponseBody::Points {
                 fingerprint,
                 points,
             } if points.len() == orders[k].len() => {
                 fingerprints.push(fingerprint);
+                let RequestBody::Compute { centroids } = &sent[k] else {
+                    unreachable!("compute requests only")
+                };
                 let mut results = vec![Err(PointStatus::Degenerate); points.len()];
-                for (&i, p) in orders[k].iter().zip(&points) {
-                    results[i] = world_point(&calibration, p);
+                for ((&i, c), p) in orders[k].iter().zip(centroids).zip(&points) {
+                    let pixel = c.pixel(calibration.centroid_bits);
+                    results[i] = place(&rig, &calibration, c.id, pixel, p);
                 }
                 out[k] = results;
                 Ok(())
@@ -411,7 +460,7 @@ impl<T: Transport> Device<T> {
         &mut self,
         frames: &[F],
     ) -> Result<Vec<Vec<(u16, PointOutcome)>>> {
-        let calibration = self.calibration()?;
+        let (calibration, rig) = self.placing()?;
         let mut requests = Vec::with_capacity(frames.len());
         // The frame of each request, and each request's length.
         let (mut owners, mut lens) = (Vec::new(), Vec::new());
@@ -434,15 +483,23 @@ impl<T: Transport> Device<T> {
         let mut batches: Vec<Vec<(u16, PointOutcome)>> = Vec::new();
         batches.resize_with(requests.len(), Vec::new);
         let mut fingerprints = Vec::new();
+        let sent = requests.clone();
         self.pipeline(requests, |b, body| match body {
             ResponseBody::Identified {
                 fingerprint,
                 points,
             } if points.len() == lens[b] => {
                 fingerprints.push(fingerprint);
+                let RequestBody::Identify { dots } = &sent[b] else {
+                    unreachable!("identify requests only")
+                };
                 batches[b] = points
                     .iter()
-                    .map(|p| (p.id, world_point(&calibration, &p.result)))
+                    .zip(dots)
+                    .map(|(p, dot)| {
+                        let pixel = dot.pixel(calibration.centroid_bits);
+                        (p.id, place(&rig, &calibration, p.id, pixel, &p.result))
+                    })
                     .collect();
                 Ok(())
             }
@@ -467,6 +524,17 @@ impl<T: Transport> Device<T> {
         match self.calibration {
             Some(c) => Ok(c),
             None => self.info()?.calibration.ok_or(DeviceError::NoCalibration),
+        }
+    }
+
+    /// The active calibration and the rig the host holds for it.
+    fn placing(&mut self) -> Result<(CalibrationSummary, Arc<HostRig>)> {
+        let calibration = self.calibration()?;
+        match &self.held {
+            Some((fingerprint, rig)) if *fingerprint == calibration.fingerprint => {
+                Ok((calibration, Arc::clone(rig)))
+            }
+            _ => Err(DeviceError::NotHeld(calibration.fingerprint)),
         }
     }
 
@@ -724,19 +792,25 @@ fn fresh_seq() -> u32 {
     now.subsec_nanos() ^ (now.as_secs() as u32).rotate_left(7) ^ std::process::id().rotate_left(16)
 }
 
-/// A result from the device in world coordinates: the camera centre (f64) added back.
-fn world_point(
+/// The world point of the device's result for the dot of ray `id` it was sent at `pixel`
+/// (the fixed point's position): placed at the device's depth by the calibration's method.
+fn place(
+    rig: &HostRig,
     calibration: &CalibrationSummary,
-    p: &PointResult,
-) -> std::result::Result<WorldPoint, PointStatus> {
-    match *p {
-        PointResult::Point { .. } => Ok(WorldPoint {
-            point: p.camera_centred_mm().unwrap_or_default()
-                + Vector3::from(calibration.camera_centre),
-            miss: p.miss_mm().unwrap_or_default(),
-        }),
-        PointResult::Failed(status) => Err(status),
-    }
+    id: u16,
+    (col, row): (f64, f64),
+    result: &PointResult,
+) -> PointOutcome {
+    let depth = match result {
+        PointResult::Depth(_) => result.depth_mm().unwrap_or_default(),
+        PointResult::Failed(status) => return Err(*status),
+    };
+    rig.reconstruct_at_depth(id, col, row, depth, calibration.method.into())
+        .map(|hit| WorldPoint {
+            point: hit.point,
+            miss: hit.miss,
+        })
+        .map_err(PointStatus::of)
 }
 
 fn answer(body: ResponseBody) -> Result<ResponseBody> {

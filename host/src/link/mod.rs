@@ -12,8 +12,8 @@ mod serial;
 
 pub use calibration::{calibration_blob, calibration_blob_identifying};
 pub use client::{
-    Device, DeviceError, LineCounts, PointOutcome, WorldPoint, DEFAULT_TIMEOUT, DEFAULT_WINDOW,
-    TRIES,
+    Device, DeviceError, HostRig, LineCounts, PointOutcome, WorldPoint, DEFAULT_TIMEOUT,
+    DEFAULT_WINDOW, TRIES,
 };
 pub use in_process::{InProcess, InProcessFlash};
 pub use qemu::Qemu;
@@ -38,13 +38,6 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
         (**self).recv(buf, timeout)
     }
-}
-
-/// The device's miss distance at saturation (mm): a point whose miss distance is this large
-/// was farther from its ray than the wire format can say (a lower bound).
-pub fn miss_saturated_mm() -> f64 {
-    use deltaz_shared::protocol::fixed::{MISS_SATURATED, MISS_UNITS_PER_MM};
-    f64::from(MISS_SATURATED) / MISS_UNITS_PER_MM
 }
 
 /// The step (px) a device's centroids are quantised to on the wire for a sensor of `width` ×

@@ -227,8 +227,6 @@ pub enum DotState {
     Identified = 0,
     /// Not identified (or without a point).
     NotIdentified = 1,
-    /// Identified, its point's miss distance at the wire's saturation (a lower bound).
-    Saturated = 2,
 }
 
 /// Each measured dot's state.
@@ -248,7 +246,6 @@ pub fn dot_states(dots: &[(f64, f64)], found: &Identified) -> Vec<DotState> {
     dots.iter()
         .map(
             |&(c, r)| match ray_of.get(&key(c, r)).and_then(|id| point_of.get(id)) {
-                Some(&i) if found.saturated.get(i) == Some(&true) => DotState::Saturated,
                 Some(_) => DotState::Identified,
                 None => DotState::NotIdentified,
             },
@@ -384,9 +381,8 @@ fn live_json(seq: u64, frame: &Measured, found: &Identified, fps: f64) -> String
         "dots": dots,
         "counts": {
             "dots": frame.dots.len(),
-            "identified": count(DotState::Identified) + count(DotState::Saturated),
+            "identified": count(DotState::Identified),
             "not_identified": count(DotState::NotIdentified),
-            "saturated": count(DotState::Saturated),
             "points": found.points.len(),
         },
         "fps": (fps * 10.0).round() / 10.0,

@@ -225,7 +225,6 @@ fn fill(
             let state = match state {
                 DotState::Identified => "identified",
                 DotState::NotIdentified => "not-identified",
-                DotState::Saturated => "saturated",
             };
             let ray = ray_of
                 .get(&(col.to_bits(), row.to_bits()))

@@ -7,7 +7,7 @@ use crate::link::{Device, DeviceError, InProcess, Qemu, Serial, Transport};
 use crate::report::console::Output;
 use anyhow::{bail, Context, Result};
 use deltaz_firmware::server::IN_FLIGHT_BYTES;
-use deltaz_shared::protocol::calibration::IdentifyParams;
+use deltaz_shared::protocol::calibration::{IdentifyParams, IntersectionMethod};
 use deltaz_shared::protocol::{CalibrationSummary, MAX_NONCENTRAL_RAYS, MAX_RAYS};
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
@@ -85,6 +85,7 @@ pub fn info(args: &LinkArgs) -> Result<()> {
                 "rays": s.rays,
                 "centroid_bits": s.centroid_bits,
                 "camera_centre_mm": s.camera_centre,
+                "method": method_name(s.method),
             })
         });
         let json = serde_json::json!({
@@ -112,12 +113,13 @@ pub fn info(args: &LinkArgs) -> Result<()> {
     );
     match i.calibration {
         Some(s) => println!(
-            "calibration {:016x} (generation {}): {} rays, centroids in 1/{} pixel, camera centre {:.3?} mm",
+            "calibration {:016x} (generation {}): {} rays, centroids in 1/{} pixel, camera centre {:.3?} mm, intersection {}",
             s.fingerprint,
             s.generation,
             s.rays,
             1u32 << s.centroid_bits,
-            s.camera_centre
+            s.camera_centre,
+            method_name(s.method)
         ),
         None => println!("no calibration"),
     }
@@ -197,7 +199,7 @@ pub fn ensure_calibration(
     identification: Option<IdentifyParams>,
     upload: bool,
 ) -> Result<()> {
-    match device.expect_calibration(fingerprint) {
+    match device.expect_system(rig, fingerprint) {
         Ok(_) => Ok(()),
         Err(DeviceError::Fingerprint { .. }) if upload || link.port.is_none() => {
             let system = (system, rig, fingerprint);
@@ -257,4 +259,12 @@ pub fn upload(
         println!("{json}");
     }
     Ok(())
+}
+
+/// The name of an intersection method as the CLI's `--method` spells it.
+fn method_name(method: IntersectionMethod) -> &'static str {
+    match method {
+        IntersectionMethod::Paper => "paper",
+        IntersectionMethod::ClosestApproach => "closest",
+    }
 }

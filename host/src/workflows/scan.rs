@@ -8,7 +8,6 @@ use crate::io::atomic::{Pending, Staged};
 use crate::io::ply::{encode_with, CloudInfo, Encoding};
 use crate::io::points_comment;
 use crate::io::system_file::{SystemFile, SystemRig};
-use crate::link::miss_saturated_mm;
 use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::DotObservation;
 use deltaz_calib::reconstruct::{reconstruct, ReconstructedPoint};
@@ -59,19 +58,10 @@ pub struct Identified {
     pub identified: Vec<DotObservation>,
     /// Their points, in the same order.
     pub points: Vec<ReconstructedPoint>,
-    /// For each point: its miss distance is the wire format's saturated value (a lower bound).
-    pub saturated: Vec<bool>,
     /// Dots rejected for lying off the calibration's sensor.
     pub off_sensor: usize,
     /// Dots identified with a ray but without a point (degenerate or out of range).
     pub failed: usize,
-}
-
-impl Identified {
-    /// Points whose miss distance is saturated.
-    pub fn saturated_count(&self) -> usize {
-        self.saturated.iter().filter(|&&s| s).count()
-    }
 }
 
 /// Frames per second and latency (from the start of reading a frame to its points).
@@ -81,8 +71,6 @@ pub struct ScanStats {
     pub frames: usize,
     /// Points reconstructed.
     pub points: usize,
-    /// Points whose miss distance is saturated (device only).
-    pub saturated: usize,
     /// Dots rejected off the sensor.
     pub off_sensor: usize,
     /// Wall time of the whole scan.
@@ -121,7 +109,6 @@ pub fn on_host<'a>(
             .collect();
         let points = reconstruct(rig, &identified, method, None, None)?;
         Ok(Identified {
-            saturated: vec![false; points.len()],
             failed: identified.len() - points.len(),
             identified,
             points,
@@ -157,7 +144,6 @@ pub fn on_device<'a, T: crate::link::Transport>(
             match r {
                 Ok(w) => {
                     out.identified.push(DotObservation { id, col, row });
-                    out.saturated.push(w.miss >= miss_saturated_mm());
                     out.points.push(ReconstructedPoint {
                         id,
                         point: w.point,
@@ -191,7 +177,6 @@ pub fn scan(
     let mut stats = ScanStats {
         frames: 0,
         points: 0,
-        saturated: 0,
         off_sensor: 0,
         elapsed: Duration::ZERO,
         mean_latency: Duration::ZERO,
@@ -223,7 +208,6 @@ pub fn scan(
             sink(&out)?;
             stats.frames += 1;
             stats.points += out.found.points.len();
-            stats.saturated += out.found.saturated_count();
             stats.off_sensor += out.found.off_sensor;
             latency += began.elapsed();
         }
@@ -334,7 +318,7 @@ pub struct ScanArgs {
     pub out: PathBuf,
     /// One PLY `OUT/scan.ply` of all frames with the `frame` property.
     pub one_file: bool,
-    /// CSV `frame,image,point,X,Y,Z,miss,saturated` of all frames.
+    /// CSV `frame,image,point,X,Y,Z,miss` of all frames.
     pub csv: Option<PathBuf>,
     /// Intersection method.
     pub method: Method,
@@ -378,7 +362,7 @@ fn scan_into(
         Some(path) => {
             let (pending, mut writer) = Pending::new(path, "csv")?;
             write!(writer, "{}", points_comment(frame, fingerprint))?;
-            writeln!(writer, "frame,image,point,X,Y,Z,miss,saturated")?;
+            writeln!(writer, "frame,image,point,X,Y,Z,miss")?;
             Some((pending, writer))
         }
         None => None,
@@ -412,19 +396,12 @@ fn scan_into(
             staged.add(&args.out.join(format!("{}.ply", f.label)), &bytes)?;
         }
         if let Some((pending, writer)) = &mut csv {
-            for (p, saturated) in points.iter().zip(&f.found.saturated) {
+            for p in points {
                 let x = p.point;
                 writeln!(
                     writer,
-                    "{},{},{},{},{},{},{},{}",
-                    f.frame,
-                    f.label,
-                    p.id,
-                    x.x,
-                    x.y,
-                    x.z,
-                    p.miss,
-                    u8::from(*saturated)
+                    "{},{},{},{},{},{},{}",
+                    f.frame, f.label, p.id, x.x, x.y, x.z, p.miss
                 )
                 .with_context(|| format!("{}: cannot write", pending.target.display()))?;
             }

@@ -43,7 +43,7 @@ pub struct StreamArgs {
     pub source: StreamSource,
     /// PLY output.
     pub out: Option<PathBuf>,
-    /// CSV output `image,point,X,Y,Z,miss,saturated`.
+    /// CSV output `image,point,X,Y,Z,miss`.
     pub csv: Option<PathBuf>,
     /// Intersection method for an upload.
     pub method: Method,
@@ -89,14 +89,11 @@ fn stream_group(
         .collect())
 }
 
-/// What became of every dot a stream sent: a point (its miss distance possibly saturated),
-/// not identified, or no point, each by the device's reason.
+/// What became of every dot a stream sent: a point, not identified, or no point, each by the device's reason.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct DotCounts {
     /// Points.
     pub points: usize,
-    /// Points whose miss distance is the wire format's saturated value (a lower bound).
-    pub saturated: usize,
     /// Identification: no ray's epipolar segment within tolerance.
     pub unassigned: usize,
     /// Identification: two or more segments within tolerance.
@@ -117,10 +114,7 @@ impl DotCounts {
     /// Counts one dot's outcome.
     pub fn add(&mut self, outcome: &PointOutcome) {
         let n = match outcome {
-            Ok(p) => {
-                self.saturated += usize::from(p.miss >= crate::link::miss_saturated_mm());
-                &mut self.points
-            }
+            Ok(_) => &mut self.points,
             Err(PointStatus::Unassigned) => &mut self.unassigned,
             Err(PointStatus::Ambiguous) => &mut self.ambiguous,
             Err(PointStatus::Conflict) => &mut self.conflict,
@@ -150,13 +144,10 @@ impl DotCounts {
     /// For people: every dot accounted for, the three groups adding up to the dots sent.
     pub fn text(&self) -> String {
         format!(
-            "{} dots: {} points ({} with the saturated miss distance ≥ {:.2} mm, a lower bound), \
-             {} not identified ({} unassigned, {} ambiguous, {} conflicts), {} without a point \
+            "{} dots: {} points, {} not identified ({} unassigned, {} ambiguous, {} conflicts), {} without a point \
              ({} unknown ray, {} degenerate, {} out of range, {} off the sensor)",
             self.dots(),
             self.points,
-            self.saturated,
-            crate::link::miss_saturated_mm(),
             self.unidentified(),
             self.unassigned,
             self.ambiguous,
@@ -174,7 +165,6 @@ impl DotCounts {
         serde_json::json!({
             "dots": self.dots(),
             "points": self.points,
-            "saturated_miss": self.saturated,
             "unidentified": self.unidentified(),
             "without_point": self.without_point(),
             "reasons": {
@@ -255,7 +245,7 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
         (Some(frame), Some(f)) => points_comment(frame, f),
         _ => String::new(),
     };
-    csv += "image,point,X,Y,Z,miss,saturated\n";
+    csv += "image,point,X,Y,Z,miss\n";
     // Groups of frames, each pipelined (several requests in flight), between progress updates.
     for (g, group) in frames.chunks(STREAM_GROUP).enumerate() {
         let results = stream_group(&mut device, group, args.identify)?;
@@ -265,11 +255,7 @@ pub fn stream(args: &StreamArgs) -> Result<()> {
                 let Ok(WorldPoint { point, miss }) = r else {
                     continue;
                 };
-                let saturated = u8::from(miss >= crate::link::miss_saturated_mm());
-                csv += &format!(
-                    "{image},{id},{},{},{},{miss},{saturated}\n",
-                    point.x, point.y, point.z
-                );
+                csv += &format!("{image},{id},{},{},{},{miss}\n", point.x, point.y, point.z);
                 points.push(ReconstructedPoint {
                     id,
                     point,

@@ -244,7 +244,7 @@ fn stream_matches_reconstruct() {
     assert_eq!(rows.lines().count() as u64 - 2, n(&wide["points"]));
     let (comment, rows) = rows.split_once('\n').unwrap();
     assert!(comment.starts_with("# points in mm, the plate frame of image p1, calibration "));
-    assert!(rows.starts_with("image,point,X,Y,Z,miss,saturated\n"));
+    assert!(rows.starts_with("image,point,X,Y,Z,miss\n"));
     let ply = std::fs::read(dir.path().join("wide.ply")).unwrap();
     let header = String::from_utf8_lossy(&ply[..800]);
     assert!(

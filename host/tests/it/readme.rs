@@ -67,7 +67,9 @@ fn readme_examples_agree_with_help_and_run() {
         for flag in all.iter().filter(|w| w.starts_with("--")) {
             let flag = flag.split('=').next().unwrap();
             assert!(
-                [" ", "\n", "["].iter().any(|end| help.contains(&format!("{flag}{end}"))),
+                [" ", "\n", "["]
+                    .iter()
+                    .any(|end| help.contains(&format!("{flag}{end}"))),
                 "README: {line}\n`deltaz {}` does not list {flag}:\n{help}",
                 help_args.join(" ")
             );

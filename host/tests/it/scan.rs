@@ -296,7 +296,7 @@ fn scan_command_files() {
         );
     }
     // Through the in-process device, one PLY with each point's frame index, the summary as
-    // JSON: the same rays per frame as the host's CSV, none saturated, none off the sensor.
+    // JSON: the same rays per frame as the host's CSV, none off the sensor.
     let mut device_args: Vec<&str> = scan_args[..scan_args.len() - 1].to_vec();
     device_args[11] = "one.csv";
     device_args.extend(["--one-file", "--json", "--quiet"]);
@@ -308,13 +308,7 @@ fn scan_command_files() {
     );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(summary["frames"], 2);
-    assert_eq!(
-        (
-            summary["saturated_miss"].as_u64(),
-            summary["off_sensor"].as_u64()
-        ),
-        (Some(0), Some(0))
-    );
+    assert_eq!(summary["off_sensor"].as_u64(), Some(0));
     let labels: Vec<String> = deltaz_host::io::ply::read_points(&d.join("clouds/scan.ply"))
         .unwrap()
         .into_iter()
@@ -326,7 +320,7 @@ fn scan_command_files() {
         .skip(2)
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
-            assert_eq!(f[7], "0", "{l}");
+            assert_eq!(f.len(), 7, "frame,image,point,X,Y,Z,miss: {l}");
             format!("{}:{}", f[0], f[2])
         })
         .collect();
@@ -465,7 +459,6 @@ fn device_scan_equals_host_scan() {
                 same += 1;
                 worst = worst.max((d.found.points[k].point - p.point).norm());
                 worst_miss = worst_miss.max((d.found.points[k].miss - p.miss).abs());
-                assert!(!d.found.saturated[k]);
             }
             common += same;
             let differ = h.found.points.len() + d.found.points.len() - 2 * same;
@@ -483,16 +476,19 @@ fn device_scan_equals_host_scan() {
             worst * 1e3,
             worst_miss * 1e3
         );
-        assert!(worst < 1e-3, "device vs host {worst} mm");
-        assert!(worst_miss <= 0.5 / 256.0 + 1e-4, "miss {worst_miss} mm");
+        // The device's f32 depth (a few ulps of λ: under a micrometre at 2 m) and half a unit
+        // of its quantisation on the wire (0.49 µm).
+        assert!(worst < 1.5e-3, "device vs host {worst} mm");
+        assert!(worst_miss < 1e-4, "miss {worst_miss} mm");
     }
 }
 
-/// Dots moved off their epipolar lines get miss distances either side of the wire's limit
-/// (0.934 mm): the device flags exactly those the host (f64) puts at or beyond it, and gives
-/// the limit as their miss; two dots off the sensor are rejected and counted on both sides.
+/// Dots moved off their epipolar lines get miss distances up to a few millimetres: the device's
+/// (placed by the host at the device's depth) equal the host's (f64) to a micrometre, beyond
+/// the 0.93 mm protocol 5 could say too; two dots off the sensor are rejected and counted on
+/// both sides.
 #[test]
-fn saturated_miss_flagged_and_off_sensor_dots_rejected() {
+fn wide_misses_kept_and_off_sensor_dots_rejected() {
     let rig = true_rig(&Scenario::paper());
     let (identifier, mut device, bits) = host_and_device(
         &rig,
@@ -522,13 +518,11 @@ fn saturated_miss_flagged_and_off_sensor_dots_rejected() {
     .collect();
     dots.extend([(768.2, 100.0), (100.0, 512.0)]);
     let dots = quantised(&dots, bits);
-    let limit = deltaz_host::link::miss_saturated_mm();
     let host = on_host(&rig, &identifier, Method::ClosestApproach)(&dots).unwrap();
     let dev = on_device(&rig, &mut device)(&dots).unwrap();
     assert_eq!((host.off_sensor, dev.off_sensor), (2, 2));
-    assert_eq!(host.saturated_count(), 0, "the host's miss never saturates");
-    let (mut flagged, mut clear) = (0, 0);
-    for ((dot, p), &saturated) in dev.identified.iter().zip(&dev.points).zip(&dev.saturated) {
+    let (mut wide, mut worst) = (0, 0.0f64);
+    for (dot, p) in dev.identified.iter().zip(&dev.points) {
         let truth = deltaz_calib::reconstruct::reconstruct(
             &rig,
             &[*dot],
@@ -538,26 +532,14 @@ fn saturated_miss_flagged_and_off_sensor_dots_rejected() {
         )
         .unwrap()[0]
             .miss;
-        if (truth - limit).abs() < 0.01 {
-            continue;
-        }
-        assert_eq!(
-            saturated,
-            truth >= limit,
-            "ray {}: host miss {truth} mm",
-            dot.id
-        );
-        if saturated {
-            flagged += 1;
-            assert_eq!(p.miss, limit);
-        } else {
-            clear += 1;
-            assert!((p.miss - truth).abs() < 0.01, "{} vs {truth}", p.miss);
-        }
+        worst = worst.max((p.miss - truth).abs());
+        wide += usize::from(truth > 0.934);
     }
-    println!("saturated miss: {flagged} flagged, {clear} below the limit");
-    assert!(
-        flagged > 10 && clear > 10,
-        "{flagged} flagged, {clear} clear"
+    println!(
+        "{} points, {wide} with a miss beyond 0.934 mm; device - host miss ≤ {:.3} µm",
+        dev.points.len(),
+        worst * 1e3
     );
+    assert!(wide > 10, "{wide} wide misses");
+    assert!(worst < 1e-3, "device miss {worst} mm from the host's");
 }

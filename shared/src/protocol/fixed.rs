@@ -1,9 +1,9 @@
 //! The compact fixed-point forms of a dot (4 bytes), a centroid (a delta-coded id and a dot) and
-//! of a computed point (10 bytes).
+//! of a computed point (3 bytes).
 
 use super::delta::Keyed;
 use crate::Error;
-use nalgebra::{RealField, Vector3};
+use nalgebra::RealField;
 use serde::{de::Error as _, Deserialize, Deserializer, Serialize, Serializer};
 use simba::scalar::SupersetOf;
 
@@ -146,7 +146,7 @@ pub enum PointStatus {
     UnknownRay,
     /// The camera and projector rays are (nearly) parallel.
     Degenerate,
-    /// The point lies farther than 2048 mm from the camera centre along an axis.
+    /// The point lies behind the camera or farther than 16 m along its axis.
     OutOfRange,
     /// Identification: no ray's epipolar segment passes within tolerance of the dot.
     Unassigned,
@@ -159,143 +159,97 @@ pub enum PointStatus {
     OffSensor,
 }
 
-/// Units per millimetre of a point coordinate: 2¹² (0.244 µm).
-pub const POINT_UNITS_PER_MM: f64 = 4096.0;
-/// Units per millimetre of the miss distance: 2⁸ (3.9 µm).
-pub const MISS_UNITS_PER_MM: f64 = 256.0;
-/// The largest miss code; it also stands for every larger miss (≥ 0.93 mm).
-pub const MISS_SATURATED: u8 = 0xEF;
-const LIMIT: f64 = 8_388_607.0; // 2^23 − 1
-const UNKNOWN_RAY: u8 = 0xF0;
-const DEGENERATE: u8 = 0xF1;
-const OUT_OF_RANGE: u8 = 0xF2;
-const UNASSIGNED: u8 = 0xF3;
-const AMBIGUOUS: u8 = 0xF4;
-const CONFLICT: u8 = 0xF5;
-const OFF_SENSOR: u8 = 0xF6;
+impl PointStatus {
+    /// The status of a reconstruction's error.
+    pub fn of(error: Error) -> Self {
+        match error {
+            Error::UnknownRay(_) => PointStatus::UnknownRay,
+            _ => PointStatus::Degenerate,
+        }
+    }
+}
 
-/// The device's answer for one centroid. On the wire 10 bytes: x, y, z as 24-bit signed little
-/// endian in units of 2⁻¹² mm *relative to the camera centre* (world axes), then one byte that is
-/// the miss distance in units of 2⁻⁸ mm (0 ..= 0xEF, saturating) or a status (0xF0 unknown ray,
-/// 0xF1 degenerate, 0xF2 out of range, 0xF3 unassigned, 0xF4 ambiguous, 0xF5 conflict, 0xF6
-/// off the sensor; the coordinates are then zero).
+/// Units per millimetre of a depth: 2¹⁰ (0.98 µm).
+pub const DEPTH_UNITS_PER_MM: f64 = 1024.0;
+/// The largest depth code (16,384 mm less 17 units); the codes above it are statuses.
+const DEPTH_LIMIT: u32 = 0xFF_FFEF;
+const STATUSES: [(u32, PointStatus); 7] = [
+    (0xFF_FFF0, PointStatus::UnknownRay),
+    (0xFF_FFF1, PointStatus::Degenerate),
+    (0xFF_FFF2, PointStatus::OutOfRange),
+    (0xFF_FFF3, PointStatus::Unassigned),
+    (0xFF_FFF4, PointStatus::Ambiguous),
+    (0xFF_FFF5, PointStatus::Conflict),
+    (0xFF_FFF6, PointStatus::OffSensor),
+];
+
+/// The device's answer for one centroid: the depth of its point, λ·f of eqs (6)-(8) (the
+/// distance in front of the camera along its axis, −z of the camera system), or why there is
+/// none. The host, which holds the calibration in f64, places the point from the depth
+/// ([`crate::rig::Rig::reconstruct_at_depth`]): the same point and miss distance as the
+/// device's intersection, to the depth's quantisation. On the wire 3 bytes, u24 little endian:
+/// the depth in units of 2⁻¹⁰ mm (0 ..= 0xFF_FFEF), or a status (0xFF_FFF0 unknown ray,
+/// 0xFF_FFF1 degenerate, 0xFF_FFF2 out of range, 0xFF_FFF3 unassigned, 0xFF_FFF4 ambiguous,
+/// 0xFF_FFF5 conflict, 0xFF_FFF6 off the sensor).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PointResult {
-    /// A point.
-    Point {
-        /// Coordinates relative to the camera centre, units of 2⁻¹² mm, each within ±(2²³ − 1).
-        xyz: [i32; 3],
-        /// Miss distance code (units of 2⁻⁸ mm, saturating at [`MISS_SATURATED`]).
-        miss: u8,
-    },
+    /// A point at this depth (units of 2⁻¹⁰ mm, at most 0xFF_FFEF).
+    Depth(u32),
     /// No point.
     Failed(PointStatus),
 }
 
-/// `libm::roundf(x) as i32` (halves away from zero) given `twice` = 2x, for |x| < 2^30,
-/// without libm's software rounding (about 25 instructions, four times a point) and without a
-/// float comparison: the truncation t of 2x (one VCVT) is ±2⌊|x|⌋, or ±(2⌊|x|⌋ + 1) when the
-/// fraction of |x| is at least ½, and t/2 + t%2 (both truncating) is then |x| rounded half up
-/// with x's sign. Beyond the range the conversion saturates, and so does the result (NaN
-/// gives 0). The callers scale by a power of two times 2 at once (exact).
-fn round_half_away(twice: f32) -> i32 {
-    let t = twice as i32;
-    t / 2 + t % 2
-}
-
 impl PointResult {
-    /// Quantise a camera-centred point and its miss distance (mm), in f32 (the device's FPU
-    /// arithmetic: scaling by a power of two is exact, so this equals the f64 quantisation).
-    /// A coordinate whose units round beyond ±(2²³ − 1) is out of range, and so is a NaN one.
-    pub fn from_camera_centred(point: &Vector3<f32>, miss: f32) -> Self {
-        const UNITS: f32 = POINT_UNITS_PER_MM as f32;
-        const LIMIT24: i32 = LIMIT as i32;
-        // A NaN coordinate (or opposite infinities) makes the sum NaN; a lone infinity
-        // saturates its conversion and fails the range test.
-        if (point.x + point.y + point.z).is_nan() {
+    /// Quantise a depth (mm), rounding half up, in f32 (the device's FPU arithmetic): the
+    /// truncation t of 2·depth·2¹⁰ (scaling by a power of two is exact, one VCVT) is twice the
+    /// units, plus one when their fraction is at least ½, so t/2 + t%2 is the rounded units.
+    /// A depth behind the camera, beyond the codes or NaN is out of range.
+    pub fn from_depth(depth: f32) -> Self {
+        // Negative or NaN (incomparable) is refused here.
+        if depth.partial_cmp(&0.0).is_none_or(core::cmp::Ordering::is_lt) {
             return Self::Failed(PointStatus::OutOfRange);
         }
-        let xyz = [point.x, point.y, point.z].map(|c| round_half_away(c * (2.0 * UNITS)));
-        if xyz.iter().any(|u| !(-LIMIT24..=LIMIT24).contains(u)) {
-            return Self::Failed(PointStatus::OutOfRange);
+        // Saturates at u32::MAX for ∞ or a huge depth, beyond the codes.
+        let twice = (depth * (2.0 * DEPTH_UNITS_PER_MM as f32)) as u32;
+        match twice / 2 + twice % 2 {
+            units @ 0..=DEPTH_LIMIT => Self::Depth(units),
+            _ => Self::Failed(PointStatus::OutOfRange),
         }
-        // Twice the units (NaN saturates).
-        let twice = miss * (2.0 * MISS_UNITS_PER_MM as f32);
-        let miss = if twice < 2.0 * f32::from(MISS_SATURATED) {
-            round_half_away(twice).max(0) as u8
-        } else {
-            MISS_SATURATED
-        };
-        Self::Point { xyz, miss }
     }
 
-    /// The result of a reconstruction: a point or the status of its error.
+    /// The result of a reconstruction that failed.
     pub fn from_error(error: Error) -> Self {
-        Self::Failed(match error {
-            Error::UnknownRay(_) => PointStatus::UnknownRay,
-            _ => PointStatus::Degenerate,
-        })
+        Self::Failed(PointStatus::of(error))
     }
 
-    /// The camera-centred point in mm, if there is one.
-    pub fn camera_centred_mm(&self) -> Option<Vector3<f64>> {
+    /// The depth in mm, if there is a point.
+    pub fn depth_mm(&self) -> Option<f64> {
         match self {
-            Self::Point { xyz, .. } => Some(Vector3::from(
-                xyz.map(|u| f64::from(u) / POINT_UNITS_PER_MM),
-            )),
-            Self::Failed(_) => None,
-        }
-    }
-
-    /// The miss distance in mm (a lower bound when saturated), if there is a point.
-    pub fn miss_mm(&self) -> Option<f64> {
-        match self {
-            Self::Point { miss, .. } => Some(f64::from(*miss) / MISS_UNITS_PER_MM),
+            Self::Depth(units) => Some(f64::from(*units) / DEPTH_UNITS_PER_MM),
             Self::Failed(_) => None,
         }
     }
 
     #[inline]
-    pub(super) fn to_bytes(self) -> [u8; 10] {
-        let mut bytes = [0u8; 10];
-        match self {
-            Self::Point { xyz, miss } => {
-                for (chunk, v) in bytes.chunks_exact_mut(3).zip(xyz) {
-                    chunk.copy_from_slice(&v.to_le_bytes()[..3]);
-                }
-                bytes[9] = miss;
-            }
-            Self::Failed(status) => {
-                bytes[9] = match status {
-                    PointStatus::UnknownRay => UNKNOWN_RAY,
-                    PointStatus::Degenerate => DEGENERATE,
-                    PointStatus::OutOfRange => OUT_OF_RANGE,
-                    PointStatus::Unassigned => UNASSIGNED,
-                    PointStatus::Ambiguous => AMBIGUOUS,
-                    PointStatus::Conflict => CONFLICT,
-                    PointStatus::OffSensor => OFF_SENSOR,
-                }
-            }
-        }
-        bytes
+    pub(super) fn to_bytes(self) -> [u8; 3] {
+        let code = match self {
+            Self::Depth(units) => units,
+            Self::Failed(status) => STATUSES
+                .iter()
+                .find(|(_, s)| *s == status)
+                .map_or(0xFF_FFFF, |(code, _)| *code),
+        };
+        let [a, b, c, _] = code.to_le_bytes();
+        [a, b, c]
     }
 
-    fn from_bytes(bytes: [u8; 10]) -> Option<Self> {
-        let i24 = |b: &[u8]| i32::from_le_bytes([0, b[0], b[1], b[2]]) >> 8;
-        let status = |s| Some(Self::Failed(s));
-        match bytes[9] {
-            miss @ 0..=MISS_SATURATED => Some(Self::Point {
-                xyz: [i24(&bytes[0..3]), i24(&bytes[3..6]), i24(&bytes[6..9])],
-                miss,
-            }),
-            UNKNOWN_RAY => status(PointStatus::UnknownRay),
-            DEGENERATE => status(PointStatus::Degenerate),
-            OUT_OF_RANGE => status(PointStatus::OutOfRange),
-            UNASSIGNED => status(PointStatus::Unassigned),
-            AMBIGUOUS => status(PointStatus::Ambiguous),
-            CONFLICT => status(PointStatus::Conflict),
-            OFF_SENSOR => status(PointStatus::OffSensor),
-            _ => None,
+    fn from_bytes([a, b, c]: [u8; 3]) -> Option<Self> {
+        match u32::from_le_bytes([a, b, c, 0]) {
+            units @ 0..=DEPTH_LIMIT => Some(Self::Depth(units)),
+            code => STATUSES
+                .iter()
+                .find(|(c, _)| *c == code)
+                .map(|(_, s)| Self::Failed(*s)),
         }
     }
 }
@@ -308,15 +262,15 @@ impl Serialize for PointResult {
 
 impl<'de> Deserialize<'de> for PointResult {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        Self::from_bytes(<[u8; 10]>::deserialize(d)?)
+        Self::from_bytes(<[u8; 3]>::deserialize(d)?)
             .ok_or_else(|| D::Error::custom("unknown point status"))
     }
 }
 
 /// The device's answer for one unlabelled dot: the ray it was identified as and its point, or a
 /// status. The id is the ray (a point, or a reconstruction status), the closest ray
-/// ([`PointStatus::Ambiguous`]), or 0 ([`PointStatus::Unassigned`]). On the wire the delta-coded id (see [`super::delta`]) and the
-/// 10 bytes of the [`PointResult`].
+/// ([`PointStatus::Ambiguous`]), or 0 ([`PointStatus::Unassigned`]). On the wire the
+/// delta-coded id (see [`super::delta`]) and the 3 bytes of the [`PointResult`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct IdentifiedPoint {
     /// The ray id (see above).
@@ -344,21 +298,6 @@ impl Keyed for IdentifiedPoint {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rounding_is_libms() {
-        let below_half = f32::from_bits(0.5f32.to_bits() - 1);
-        let mut values = vec![0.0, -0.0, 0.5, -0.5, below_half, -below_half, 1.5, -2.5];
-        values.extend([LIMIT as f32, -(LIMIT as f32), 8_388_606.5, -8_388_606.5]);
-        values.extend([8_388_608.0, -8_388_608.0, 1.0e9, -1.0e9, 1.5e-45, -1.5e-45]);
-        for k in -3000..3000 {
-            let k = k as f32;
-            values.extend([k + 0.5, k - 0.5, k + below_half, k * 1.37, k * 2796.2031]);
-        }
-        for x in values {
-            assert_eq!(round_half_away(2.0 * x), libm::roundf(x) as i32, "{x}");
-        }
-    }
 
     #[test]
     fn fraction_bits_fit_the_sensor() {
@@ -405,48 +344,46 @@ mod tests {
     }
 
     #[test]
-    fn point_quantisation_and_bytes() {
-        let p = PointResult::from_camera_centred(&Vector3::new(-1.0, 2047.0, -0.5 / 4096.0), 0.01);
-        assert_eq!(
-            p,
-            PointResult::Point {
-                xyz: [-4096, 2047 * 4096, -1],
-                miss: 3
-            }
-        );
-        assert_eq!(
-            p.to_bytes(),
-            [0x00, 0xF0, 0xFF, 0x00, 0xF0, 0x7F, 0xFF, 0xFF, 0xFF, 0x03]
-        );
+    fn depth_quantisation_and_bytes() {
+        let p = PointResult::from_depth(1500.25 + 0.4 / 1024.0);
+        assert_eq!(p, PointResult::Depth(1500 * 1024 + 256));
+        assert_eq!(p.to_bytes(), [0x00, 0x71, 0x17]);
         assert_eq!(PointResult::from_bytes(p.to_bytes()), Some(p));
-        let far = PointResult::from_camera_centred(&Vector3::new(0.0, 2048.0, 0.0), 0.0);
-        assert_eq!(far, PointResult::Failed(PointStatus::OutOfRange));
-        // The last units inside the range (f32 holds whole units only out there).
-        let edge = (LIMIT / POINT_UNITS_PER_MM) as f32;
-        let inside = PointResult::from_camera_centred(&Vector3::new(edge, 0.0, -edge), 0.0);
-        let mm = LIMIT / POINT_UNITS_PER_MM;
-        assert_eq!(inside.camera_centred_mm(), Some(Vector3::new(mm, 0.0, -mm)));
-        let beyond = PointResult::from_camera_centred(&Vector3::new(0.0, 0.0, -2048.0), 0.0);
-        assert_eq!(beyond, PointResult::Failed(PointStatus::OutOfRange));
-        for inf in [f32::INFINITY, f32::NEG_INFINITY] {
-            let p = PointResult::from_camera_centred(&Vector3::new(1.0, inf, 0.0), 0.0);
-            assert_eq!(p, PointResult::Failed(PointStatus::OutOfRange));
-        }
-        let nan = PointResult::from_camera_centred(&Vector3::new(f32::NAN, 0.0, 0.0), 0.0);
-        assert_eq!(nan, PointResult::Failed(PointStatus::OutOfRange));
-        let wide = PointResult::from_camera_centred(&Vector3::new(1.0, 1.0, 1.0), 5.0);
-        assert_eq!(wide.miss_mm(), Some(f64::from(MISS_SATURATED) / 256.0));
+        assert_eq!(p.depth_mm(), Some(1500.25));
+        // Half a unit rounds up; the camera's own plane is depth 0.
+        assert_eq!(PointResult::from_depth(0.5 / 1024.0), PointResult::Depth(1));
+        assert_eq!(PointResult::from_depth(0.0), PointResult::Depth(0));
+        // The last code inside the range, the first beyond, behind the camera, NaN, ∞.
+        let edge = (f64::from(DEPTH_LIMIT) / DEPTH_UNITS_PER_MM) as f32;
         assert_eq!(
-            PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF5]),
+            PointResult::from_depth(edge),
+            PointResult::Depth(DEPTH_LIMIT)
+        );
+        let beyond = edge + 1.0 / 1024.0;
+        for out in [
+            beyond,
+            -1.0 / 4096.0,
+            f32::NAN,
+            f32::INFINITY,
+            -f32::INFINITY,
+        ] {
+            assert_eq!(
+                PointResult::from_depth(out),
+                PointResult::Failed(PointStatus::OutOfRange),
+                "{out}"
+            );
+        }
+        for (code, status) in STATUSES {
+            let failed = PointResult::Failed(status);
+            assert_eq!(failed.to_bytes(), code.to_le_bytes()[..3]);
+            assert_eq!(PointResult::from_bytes(failed.to_bytes()), Some(failed));
+        }
+        assert_eq!(
+            PointResult::from_bytes([0xF5, 0xFF, 0xFF]),
             Some(PointResult::Failed(PointStatus::Conflict))
         );
-        assert_eq!(
-            PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF6]),
-            Some(PointResult::Failed(PointStatus::OffSensor))
-        );
-        assert_eq!(
-            PointResult::from_bytes([0, 0, 0, 0, 0, 0, 0, 0, 0, 0xF7]),
-            None
-        );
+        for unknown in [[0xF7, 0xFF, 0xFF], [0xFF, 0xFF, 0xFF]] {
+            assert_eq!(PointResult::from_bytes(unknown), None);
+        }
     }
 }

@@ -25,13 +25,16 @@
 //! # Compact per-point forms
 //! A labelled centroid is 5 bytes: its ray id as the difference to the previous centroid's id
 //! (a zigzag varint, one byte when the batch is sorted by id; see [`delta`]) and col, row as u16
-//! fixed point ([`Dot`], [`Centroid`]). A result is 10 bytes (three 24-bit coordinates relative to
-//! the camera centre in units of 2⁻¹² mm and a miss/status byte, see [`PointResult`]). With the
-//! frame overhead a 440-dot frame costs 15.1 bytes per point for request and response together.
+//! fixed point ([`Dot`], [`Centroid`]). A result is 3 bytes: the depth of the point in units of
+//! 2⁻¹⁰ mm, or a status ([`PointResult`]); the host, which holds the calibration in f64 (its
+//! fingerprint checked), places the point on the camera ray through the centroid it sent at
+//! that depth, and its miss distance follows ([`crate::rig::Rig::reconstruct_at_depth`]). With
+//! the frame overhead a 440-dot frame costs 8.1 bytes per point for request and response
+//! together.
 //!
 //! An unlabelled dot ([`RequestBody::Identify`]) is 4 bytes; its answer ([`IdentifiedPoint`]) is
 //! the delta-coded id of the ray the device identified (1-3 bytes: the dots come in image order)
-//! and the 10-byte result. The device identifies with [`crate::identify`] (f32), its lookup grid
+//! and the 3-byte result. The device identifies with [`crate::identify`] (f32), its lookup grid
 //! built when the calibration is loaded, over the depth range and tolerance the calibration
 //! carries ([`calibration::IdentifyParams`]), each dot by itself: two dots of one frame claiming
 //! one ray are found by the host, over the whole frame (which may take several requests).
@@ -42,13 +45,16 @@ pub mod fixed;
 pub mod frame;
 pub mod stream;
 
-pub use fixed::{centroid_fraction_bits, Centroid, Dot, IdentifiedPoint, PointResult, PointStatus};
+pub use fixed::{
+    centroid_fraction_bits, Centroid, Dot, IdentifiedPoint, PointResult, PointStatus,
+    DEPTH_UNITS_PER_MM,
+};
 pub use frame::{decode_request, decode_response, encode_frame, WireError};
 
 use serde::{Deserialize, Serialize};
 
 /// The protocol version reported in [`DeviceInfo`]; a change of the wire format increments it.
-pub const PROTOCOL_VERSION: u16 = 5;
+pub const PROTOCOL_VERSION: u16 = 6;
 /// The most centroids in one `Compute` request.
 pub const MAX_BATCH: usize = 512;
 /// The bytes of a device's ray table ([`crate::ray_table::RayTable`]).
@@ -62,8 +68,9 @@ pub const MAX_NONCENTRAL_RAYS: usize = RAY_POOL / crate::ray_table::NONCENTRAL_R
 /// The most bytes in one upload chunk.
 pub const CHUNK_SIZE: usize = 1024;
 /// The longest encoded frame either end sends or accepts, delimiter included: a full
-/// `Identified` response (at most 13 bytes per point) plus headers, CRC and COBS overhead.
-pub const MAX_FRAME: usize = 13 * MAX_BATCH + 128;
+/// `Identified` response (at most 6 bytes per point: a 3-byte id difference and the 3-byte
+/// result) plus headers, CRC and COBS overhead.
+pub const MAX_FRAME: usize = 6 * MAX_BATCH + 128;
 /// The longest request frame, delimiter included: a full `Compute` (at most 7 bytes per
 /// centroid: a 3-byte id difference and the 4-byte dot) plus headers, CRC and COBS overhead;
 /// what the device's receive buffer holds.
@@ -251,8 +258,11 @@ pub struct CalibrationSummary {
     pub rays: u16,
     /// Fraction bits of the centroid fixed point for this sensor ([`centroid_fraction_bits`]).
     pub centroid_bits: u8,
-    /// The camera centre X0 (world, mm): add it to a [`PointResult`]'s camera-centred point.
+    /// The camera centre X0 (world, mm).
     pub camera_centre: [f64; 3],
+    /// How the device intersects the rays: the host places the points of its depths
+    /// ([`PointResult`]) by the same method.
+    pub method: calibration::IntersectionMethod,
 }
 
 /// Counters and timing, for diagnosis.

@@ -396,7 +396,7 @@ impl<F: Flavor> FrameWriter<F> {
             .map_err(|_| WireError::BufferFull)
     }
 
-    /// Append one result of a `Points` batch: its 10 bytes at once (those serde writes).
+    /// Append one result of a `Points` batch: its 3 bytes at once (those serde writes).
     pub fn put_point(&mut self, result: &PointResult) -> Result<(), WireError> {
         self.out
             .output

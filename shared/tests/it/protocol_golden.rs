@@ -71,6 +71,7 @@ fn responses() -> Vec<Response> {
                 rays: 440,
                 centroid_bits: 6,
                 camera_centre: [375.121, 364.541, 1842.675],
+                method: IntersectionMethod::ClosestApproach,
             }),
             boot_error: Some(ErrorCode::IdentifierCapacity),
             clock: Some(BoardClock {
@@ -87,10 +88,7 @@ fn responses() -> Vec<Response> {
         ResponseBody::Points {
             fingerprint: 42,
             points: heapless::Vec::from_slice(&[
-                PointResult::Point {
-                    xyz: [1, -2, 3],
-                    miss: 5,
-                },
+                PointResult::Depth(0x17_7100),
                 PointResult::Failed(PointStatus::UnknownRay),
             ])
             .unwrap(),
@@ -110,10 +108,7 @@ fn responses() -> Vec<Response> {
             points: heapless::Vec::from_slice(&[
                 IdentifiedPoint {
                     id: 203,
-                    result: PointResult::Point {
-                        xyz: [1, -2, 3],
-                        miss: 5,
-                    },
+                    result: PointResult::Depth(0x17_7100),
                 },
                 IdentifiedPoint {
                     id: 0,
@@ -153,21 +148,24 @@ const REQUEST_FRAMES: [&str; 8] = [
 
 /// The frames of [`responses`], in order.
 const RESPONSE_FRAMES: [&str; 11] = [
-    // Protocol 5, then (after the calibration) boot_error Some(IdentifierCapacity): 01 0a, and
-    // the clock: Some, 84,000,000 Hz (varint 80 fa 86 28), the internal oscillator's PLL (01).
-    "02 01 01 02 01 3d 05 80 04 80 04 80 35 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
-     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 0a 01 80 fa 86 \
-     28 01 46 97 7d 2d 00",
+    // Protocol 6 (06), max_frame 3,200 (varint 80 19); after the camera centre the method
+    // (01: the closest approach), then boot_error Some(IdentifierCapacity): 01 0a, and the
+    // clock: Some, 84,000,000 Hz (varint 80 fa 86 28), the internal oscillator's PLL (01).
+    "02 01 01 02 01 3e 06 80 04 80 04 80 19 80 80 01 01 ef 9b af cd f8 ac d1 91 01 02 b8 03 06 \
+     0e 2d b2 9d ef 71 77 40 2d b2 9d ef a7 c8 76 40 33 33 33 33 b3 ca 9c 40 01 01 0a 01 80 fa \
+     86 28 01 7a f5 71 ce 00",
     "09 02 01 ac 02 69 ef 33 66 00",
     "07 03 02 83 08 26 e7 02 2e 00",
     "11 04 03 ef 9b af cd f8 ac d1 91 01 02 d0 af 85 68 00",
-    "06 05 04 2a 02 01 01 05 fe ff ff 03 01 02 05 01 01 01 01 01 01 01 01 06 f0 66 81 24 eb 00",
+    // Depth 1500.25 mm (0x177100: 00 71 17, its zero taken by COBS), then unknown ray (f0 ff
+    // ff); the CRC ff 5a f8 a5.
+    "05 05 04 2a 02 0a 71 17 f0 ff ff ff 5a f8 a5 00",
     "13 06 05 0a 01 b0 22 de cc 01 b8 03 e0 d4 03 91 b8 d5 09 00",
     "07 07 06 0d 21 fb e7 00",
     "08 08 07 01 fb 2e 14 c9 00",
-    // Ids 203 (zigzag 406: 96 03) with a point, then 0 (−203: 95 03) unassigned (f3).
-    "08 09 08 2a 02 96 03 01 01 05 fe ff ff 03 01 04 05 95 03 01 01 01 01 01 01 01 01 06 f3 06 \
-     79 b3 70 00",
+    // Ids 203 (zigzag 406: 96 03) at depth 1500.25 mm, then 0 (−203: 95 03) unassigned (f3 ff
+    // ff).
+    "07 09 08 2a 02 96 03 0c 71 17 95 03 f3 ff ff 9d 2a 87 2c 00",
     "01 02 07 06 02 b5 a8 05 ca 00",
     // Protocol 4: bytes lost in reception: seq 0, Error, Frame, WireError 7 (`00 07 00 07`), its
     // CRC-32 (zlib) 0xba6f5c3a.
@@ -318,10 +316,7 @@ fn streamed_out(response: &Response, out: &mut dyn FnMut(&[u8])) {
 #[test]
 fn streamed_frames_equal_buffered_ones() {
     let points: heapless::Vec<PointResult, 512> = (0..300)
-        .map(|i| PointResult::Point {
-            xyz: [0x11_1111 + i, -0x22_2222 - i, 0x33_3333],
-            miss: 0x21,
-        })
+        .map(|i| PointResult::Depth(0x21_2121 + i))
         .collect();
     let response = Response {
         seq: 77,

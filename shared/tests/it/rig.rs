@@ -158,17 +158,17 @@ proptest! {
     }
 }
 
-/// The forward projection inverts the reconstruction: the pixel of ray `id` at a depth,
-/// reconstructed, is the point at that depth (camera-system z = −depth), on two rigs.
-#[test]
-fn forward_projection_round_trip() {
+type PatternRig = Rig<f64, Vec<ProjectorRay<f64>>>;
+
+/// The paper's rig and a second geometry: camera looking down −Z at the origin, projector
+/// 300 mm to its left; each with two depths across its working range.
+fn two_rigs() -> [(PatternRig, [f64; 2]); 2] {
     let paper = Rig::new(
         DC40,
         table1(),
         &plane1(),
         Projector::new(Vector3::from(TABLE3_GLOBAL), pattern()).unwrap(),
     );
-    // A second geometry: camera looking down −Z at the origin, projector 300 mm to its left.
     let other = Rig::new(
         DC40,
         InnerOrientation::ideal(25.0),
@@ -180,10 +180,18 @@ fn forward_projection_round_trip() {
         },
         Projector::new(Vector3::new(-300.0, 0.0, 1000.0), pattern()).unwrap(),
     );
-    for (rig, depths) in [(&paper, [1400.0, 1900.0]), (&other, [700.0, 1100.0])] {
+    [(paper, [1400.0, 1900.0]), (other, [700.0, 1100.0])]
+}
+
+/// The forward projection inverts the reconstruction: the pixel of ray `id` at a depth,
+/// reconstructed, is the point at that depth (camera-system z = −depth), on two rigs.
+#[test]
+fn forward_projection_round_trip() {
+    let rigs = two_rigs();
+    for (rig, depths) in &rigs {
         let r = rig.r_cam_world();
         for ray in rig.projector_centred().rays().iter().step_by(37) {
-            for depth in depths {
+            for &depth in depths {
                 let point = rig.point_at_depth(ray.id, depth).unwrap();
                 assert!(((r * point).z + depth).abs() < 1e-9, "camera z is −depth");
                 let (col, row) = rig.pixel_at_depth(ray.id, depth).unwrap();
@@ -196,9 +204,40 @@ fn forward_projection_round_trip() {
         }
     }
     assert_eq!(
-        paper.pixel_at_depth(9999, 1500.0),
+        rigs[0].0.pixel_at_depth(9999, 1500.0),
         Err(Error::UnknownRay(9999))
     );
+}
+
+/// What a device answers is the depth of its intersection (λ·f); placed at that depth, the
+/// intersection is found again, point and miss distance, by either method and with the rays
+/// missing each other by up to a few millimetres (dots moved off their rays), on two rigs.
+#[test]
+fn placed_at_its_depth_an_intersection_is_found_again() {
+    let mut widest = 0.0f64;
+    for (rig, depths) in &two_rigs() {
+        let r = rig.r_cam_world();
+        for ray in rig.projector_centred().rays().iter().step_by(23) {
+            for (k, &depth) in depths.iter().enumerate() {
+                let (col, row) = rig.pixel_at_depth(ray.id, depth).unwrap();
+                let (col, row) = (col + 1.5 * k as f64, row - 2.0 + 3.0 * k as f64);
+                for method in [Method::Paper, Method::ClosestApproach] {
+                    let hit = rig.reconstruct(ray.id, col, row, method).unwrap();
+                    let at = rig.depth_of(&hit);
+                    let on_camera = rig.camera_ray(col, row).at(hit.lambda);
+                    assert!(((r * on_camera).z + at).abs() < 1e-9, "depth is −z");
+                    let placed = rig
+                        .reconstruct_at_depth(ray.id, col, row, at, method)
+                        .unwrap();
+                    assert!((placed.point - hit.point).norm() < 1e-9, "{method:?}");
+                    assert!((placed.miss - hit.miss).abs() < 1e-9, "{method:?}");
+                    assert!((placed.lambda_p - hit.lambda_p).abs() < 1e-9);
+                    widest = widest.max(hit.miss);
+                }
+            }
+        }
+    }
+    assert!(widest > 1.0, "the rays miss by up to {widest} mm");
 }
 
 /// One validation of a calibration: a sensor of no pixels, a zero focal length, no rays or a

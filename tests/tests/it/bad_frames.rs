@@ -219,7 +219,7 @@ fn every_bad_frame_gets_its_answer() {
             fingerprint: 77,
             points,
         } => {
-            assert!(matches!(points[0], PointResult::Point { .. }));
+            assert!(matches!(points[0], PointResult::Depth(_)));
             assert_eq!(points[1], PointResult::Failed(PointStatus::UnknownRay));
         }
         other => panic!("{other:?}"),
@@ -358,7 +358,7 @@ fn seq_zero_and_off_sensor_centroids() {
     let centroids = heapless::Vec::from_slice(&[on, off]).unwrap();
     match answer(&mut device, &request(2, RequestBody::Compute { centroids })).body {
         ResponseBody::Points { points, .. } => {
-            assert!(matches!(points[0], PointResult::Point { .. }));
+            assert!(matches!(points[0], PointResult::Depth(_)));
             assert_eq!(points[1], PointResult::Failed(PointStatus::OffSensor));
         }
         other => panic!("{other:?}"),

@@ -112,7 +112,9 @@ fn check_against_host(
         100.0 * identified as f64 / true_dots as f64,
         worst * 1e3
     );
-    assert!(worst < 1e-3, "{worst} mm");
+    // The device's f32 depth (a few ulps of λ: under a micrometre at 2 m) and half a unit of
+    // its quantisation on the wire (0.49 µm).
+    assert!(worst < 1.5e-3, "{worst} mm");
     // Every true dot but the two made to conflict.
     assert!(
         identified as f64 >= 0.99 * (true_dots - 1) as f64,
@@ -140,11 +142,11 @@ fn run<T: Transport>(device: &mut Device<T>, rig: &SystemRig) -> Vec<Answer> {
                 "unlabelled frame of {n} dots: request {request:.3} + response {response:.3} = {:.3} bytes per point",
                 request + response
             );
-            // 4 bytes a dot, 10 a result plus its delta-coded id (1-3 bytes, image order), and
-            // the frames' headers, CRC, COBS and delimiters: measured 4.045-4.048 + 11.09-11.10.
+            // 4 bytes a dot, 3 a result plus its delta-coded id (1-3 bytes, image order), and
+            // the frames' headers, CRC, COBS and delimiters: measured 4.045 + 4.104.
             assert!((4.0..4.06).contains(&request), "{request}");
-            assert!((11.05..11.15).contains(&response), "{response}");
-            assert!(request + response < 15.2, "{}", request + response);
+            assert!((4.05..4.15).contains(&response), "{response}");
+            assert!(request + response < 8.2, "{}", request + response);
             check_against_host(rig, bits, &ids, &pixels, &got);
             got
         })

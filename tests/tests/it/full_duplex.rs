@@ -213,10 +213,12 @@ fn two_440_dot_requests_in_flight_fit_the_ring_at_line_rate() {
         "high-water {} B leaves under 128 B of the ring",
         host.high_water
     );
-    assert!(backlog >= request_len && backlog > RX_RING - 1, "{backlog}");
-    // The line's answer direction is busy all the time: a frame per answer.
-    assert!(period < answer_len as f64 + 16.0, "{period}");
-    assert!(fps >= 40.0, "{fps}");
+    assert!(backlog > RX_RING - 1, "{backlog}");
+    // The line's busier direction (the requests: 5 bytes a centroid against 3 a result) is
+    // busy all the time: a frame per request.
+    assert!(answer_len < request_len, "{answer_len} {request_len}");
+    assert!(period < request_len as f64 + 16.0, "{period}");
+    assert!(fps >= 85.0, "{fps}");
 }
 
 /// A device's flash holding the paper pattern's calibration, six 440-dot Compute requests on

@@ -4,8 +4,8 @@
 use deltaz_host::link::Device;
 use deltaz_tests::pattern::{pattern_rig, plate_centroids};
 
-/// The labelled budget: 15.13 bytes per point for request and response together, asserted
-/// to the hundredth's neighbourhood (15.1-15.2).
+/// The labelled budget: 8.14 bytes per point for request and response together (protocol 5:
+/// 15.13), asserted to the hundredth's neighbourhood (8.1-8.2).
 #[test]
 fn bytes_per_point_of_a_440_dot_frame() {
     let rig = pattern_rig();
@@ -28,17 +28,17 @@ fn bytes_per_point_of_a_440_dot_frame() {
         per_direction / (440.0 * (request + response))
     );
     // 5 bytes a centroid (a one-byte id difference: the client sends the batch sorted by id,
-    // and the pattern's row changes, 21 → 100, are a difference of 79), 10 a result, plus
-    // headers, CRC, COBS and delimiters.
+    // and the pattern's row changes, 21 → 100, are a difference of 79), 3 a result (the
+    // depth), plus headers, CRC, COBS and delimiters.
     assert!((5.0..5.1).contains(&request), "{request}");
-    assert!((10.0..10.1).contains(&response), "{response}");
-    // Measured 15.13 (5.09 + 10.04).
+    assert!((3.0..3.1).contains(&response), "{response}");
+    // Measured 8.14 (5.09 + 3.05).
     assert!(
-        (15.1..15.2).contains(&(request + response)),
+        (8.1..8.2).contains(&(request + response)),
         "{}",
         request + response
     );
-    assert!(fps >= 30.0);
+    assert!(fps >= 85.0);
 }
 
 /// `device stream --simulate` of a calibration in the camera system puts its plates in front of

@@ -4,7 +4,7 @@
 'use strict';
 
 const $ = (id) => document.getElementById(id);
-const DOT_COLOURS = ['#1a9850', '#d73027', '#f39c12']; // identified, not identified, saturated
+const DOT_COLOURS = ['#1a9850', '#d73027']; // identified, not identified
 // Latencies from a frame's read to its drawing on this page (ms), the newest last.
 window.stationLatencies = [];
 
@@ -60,7 +60,6 @@ function showLive(f) {
   setText('live-dots', String(f.counts.dots));
   setText('live-points', String(f.counts.points));
   setText('live-not-identified', String(f.counts.not_identified));
-  setText('live-saturated', String(f.counts.saturated));
   const notice = $('live-notice');
   notice.hidden = !f.notice;
   notice.textContent = f.notice || '';
