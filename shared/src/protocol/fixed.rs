@@ -206,7 +206,10 @@ impl PointResult {
     /// A depth behind the camera, beyond the codes or NaN is out of range.
     pub fn from_depth(depth: f32) -> Self {
         // Negative or NaN (incomparable) is refused here.
-        if depth.partial_cmp(&0.0).is_none_or(core::cmp::Ordering::is_lt) {
+        if depth
+            .partial_cmp(&0.0)
+            .is_none_or(core::cmp::Ordering::is_lt)
+        {
             return Self::Failed(PointStatus::OutOfRange);
         }
         // Saturates at u32::MAX for ∞ or a huge depth, beyond the codes.
