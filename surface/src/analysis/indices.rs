@@ -1,0 +1,265 @@
+//! The indices along the symmetry line (deviation, imbalance, inclination, kyphosis,
+//! lordosis, their largest and RMS values, all σ in one propagation) and the maps.
+
+use super::levels::{LevelVars, Measured, Var};
+use super::{Axes, BackAnalysis, Level, Map, Posture};
+use crate::spline::D;
+use nalgebra::DVector;
+
+impl Measured<'_> {
+    pub(super) fn summarise(
+        &self,
+        levels: Vec<LevelVars>,
+        window: f64,
+        skin_d: f64,
+        spacing: f64,
+    ) -> BackAnalysis {
+        let n = levels.len();
+        let (first, last) = (&levels[0], &levels[n - 1]);
+        let span = last.v - first.v;
+        let deviation: Vec<Var> = levels
+            .iter()
+            .map(|l| {
+                let f = (l.v - first.v) / span;
+                Var {
+                    value: l.x.value - (1.0 - f) * first.x.value - f * last.x.value,
+                    gradient: &l.x.gradient - &first.x.gradient * (1.0 - f) - &last.x.gradient * f,
+                }
+            })
+            .collect();
+        let rotations: Vec<&Var> = levels.iter().map(|l| &l.rotation).collect();
+        let deviations: Vec<&Var> = deviation.iter().collect();
+        let imbalance = Var {
+            value: last.x.value - first.x.value,
+            gradient: &last.x.gradient - &first.x.gradient,
+        };
+        let rise = last.depth.value - first.depth.value;
+        let inclination = Var {
+            value: rise.atan2(span),
+            gradient: (&last.depth.gradient - &first.depth.gradient)
+                * (span / (span * span + rise * rise)),
+        };
+        let (kyphosis, lordosis) = match self.posture {
+            Posture::Standing => sagittal_angles(&levels),
+            Posture::ForwardBent => (None, None),
+        };
+        let atrs: Vec<&Var> = levels
+            .iter()
+            .filter_map(|l| l.atr.as_ref().map(|a| &a.0))
+            .collect();
+        let atr_max = (!atrs.is_empty()).then(|| largest(&atrs));
+        // Every σ in one propagation: per level x, depth, rotation, sagittal, deviation, skin, atr.
+        let mut grads: Vec<DVector<f64>> = Vec::new();
+        let mut slot = |g: &DVector<f64>| {
+            grads.push(g.clone());
+            grads.len() - 1
+        };
+        let per_level: Vec<[Option<usize>; 7]> = levels
+            .iter()
+            .zip(&deviation)
+            .map(|(l, d)| {
+                [
+                    Some(slot(&l.x.gradient)),
+                    Some(slot(&l.depth.gradient)),
+                    Some(slot(&l.rotation.gradient)),
+                    Some(slot(&l.sagittal.gradient)),
+                    Some(slot(&d.gradient)),
+                    l.skin.as_ref().map(|s| slot(&s.gradient)),
+                    l.atr.as_ref().map(|a| slot(&a.0.gradient)),
+                ]
+            })
+            .collect();
+        let rot_max = largest(&rotations);
+        let rot_rms = rms(&rotations);
+        let dev_max = largest(&deviations);
+        let dev_rms = rms(&deviations);
+        let scalars = [
+            Some(&rot_max),
+            Some(&rot_rms),
+            Some(&dev_max),
+            Some(&dev_rms),
+            Some(&imbalance),
+            Some(&inclination),
+            kyphosis.as_ref(),
+            lordosis.as_ref(),
+            atr_max.as_ref(),
+        ];
+        let scalar_slots: Vec<Option<usize>> = scalars
+            .iter()
+            .map(|s| s.map(|s| slot(&s.gradient)))
+            .collect();
+        let sigma: Vec<f64> = self
+            .fit
+            .variances(&grads)
+            .iter()
+            .map(|v| v.max(0.0).sqrt())
+            .collect();
+        let sd = |k: Option<usize>| k.map(|k| sigma[k]);
+        let deg = f64::to_degrees;
+        let out_levels = levels
+            .iter()
+            .zip(&deviation)
+            .zip(&per_level)
+            .map(|((l, d), k)| Level {
+                y: l.v,
+                symmetry_x: l.x.value,
+                symmetry_x_sigma: sigma[k[0].unwrap_or(0)],
+                depth_mm: l.depth.value,
+                depth_sigma_mm: sigma[k[1].unwrap_or(0)],
+                rotation_deg: deg(l.rotation.value),
+                rotation_sigma_deg: deg(sigma[k[2].unwrap_or(0)]),
+                sagittal_slope_deg: deg(l.sagittal.value),
+                sagittal_slope_sigma_deg: deg(sigma[k[3].unwrap_or(0)]),
+                lateral_deviation_mm: d.value,
+                lateral_deviation_sigma_mm: sigma[k[4].unwrap_or(0)],
+                skin_angle_deg: l.skin.as_ref().map(|s| deg(s.value)),
+                skin_angle_sigma_deg: sd(k[5]).map(deg),
+                atr_deg: l.atr.as_ref().map(|a| deg(a.0.value)),
+                atr_sigma_deg: sd(k[6]).map(deg),
+                atr_window: l.atr.as_ref().map(|a| a.1),
+            })
+            .collect();
+        let s = |i: usize| sd(scalar_slots[i]).unwrap_or(f64::NAN);
+        let (asymmetry, topography) = self.maps(&levels);
+        BackAnalysis {
+            posture: self.posture,
+            frames: 1,
+            points: 0,
+            calibration: None,
+            spacing_mm: spacing,
+            axes: Axes {
+                across: [1.0, 0.0, 0.0],
+                axis: [0.0, 1.0, 0.0],
+                up: [0.0, 0.0, 1.0],
+            },
+            symmetry_window_mm: window,
+            skin_angle_distance_mm: skin_d,
+            fit_chi: self.fit.chi(),
+            levels: out_levels,
+            rotation_max_deg: deg(rot_max.value),
+            rotation_max_deg_sigma: deg(s(0)),
+            rotation_rms_deg: deg(rot_rms.value),
+            rotation_rms_deg_sigma: deg(s(1)),
+            lateral_deviation_max_mm: dev_max.value,
+            lateral_deviation_max_mm_sigma: s(2),
+            lateral_deviation_rms_mm: dev_rms.value,
+            lateral_deviation_rms_mm_sigma: s(3),
+            trunk_imbalance_mm: imbalance.value,
+            trunk_imbalance_mm_sigma: s(4),
+            trunk_inclination_deg: deg(inclination.value),
+            trunk_inclination_deg_sigma: deg(s(5)),
+            kyphosis_deg: kyphosis.as_ref().map(|k| deg(k.value)),
+            kyphosis_deg_sigma: sd(scalar_slots[6]).map(deg),
+            lordosis_deg: lordosis.as_ref().map(|k| deg(k.value)),
+            lordosis_deg_sigma: sd(scalar_slots[7]).map(deg),
+            atr_max_deg: atr_max.as_ref().map(|a| deg(a.value)),
+            atr_max_deg_sigma: sd(scalar_slots[8]).map(deg),
+            sway: vec![],
+            asymmetry,
+            topography,
+        }
+    }
+
+    /// The mirror-asymmetry map (with σ) and the topography, one dot spacing apart across, at
+    /// the levels.
+    fn maps(&self, levels: &[LevelVars]) -> (Map, Map) {
+        let step = self.fit.grid.step;
+        let (lo, hi) = levels
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), l| {
+                let r = self
+                    .support
+                    .longest_run(l.v)
+                    .unwrap_or((l.x.value, l.x.value));
+                (lo.min(r.0), hi.max(r.1))
+            });
+        let a: Vec<f64> = (0..=((hi - lo) / step).floor() as usize)
+            .map(|i| lo + i as f64 * step)
+            .collect();
+        let mut asym = Vec::new();
+        let mut grads = Vec::new();
+        let mut depth = Vec::new();
+        for l in levels {
+            for &x in &a {
+                let on = self.support.contains(x, l.v);
+                depth.push(on.then(|| self.value(x, l.v, D::S)));
+                let mirror = 2.0 * l.x.value - x;
+                if on && self.support.contains(mirror, l.v) {
+                    let g = self.moving(x, l.v, D::S, D::A, &DVector::zeros(self.fit.unknowns()))
+                        - self.moving(mirror, l.v, D::S, D::A, &(&l.x.gradient * 2.0));
+                    asym.push(Some(
+                        self.value(x, l.v, D::S) - self.value(mirror, l.v, D::S),
+                    ));
+                    grads.push(g);
+                } else {
+                    asym.push(None);
+                }
+            }
+        }
+        let mut sigma = self
+            .fit
+            .variances(&grads)
+            .into_iter()
+            .map(|v| v.max(0.0).sqrt());
+        let sigmas = asym.iter().map(|x| x.and_then(|_| sigma.next())).collect();
+        let v: Vec<f64> = levels.iter().map(|l| l.v).collect();
+        let cells = depth.len();
+        (
+            Map {
+                a: a.clone(),
+                v: v.clone(),
+                values: asym,
+                sigmas,
+            },
+            Map {
+                a,
+                v,
+                values: depth,
+                sigmas: vec![None; cells],
+            },
+        )
+    }
+}
+
+/// The value of largest magnitude (signed) with its gradient.
+fn largest(vars: &[&Var]) -> Var {
+    let best = vars
+        .iter()
+        .max_by(|p, q| p.value.abs().total_cmp(&q.value.abs()))
+        .expect("at least one level");
+    Var {
+        value: best.value,
+        gradient: best.gradient.clone(),
+    }
+}
+
+/// The RMS with its gradient.
+fn rms(vars: &[&Var]) -> Var {
+    let n = vars.len() as f64;
+    let value = (vars.iter().map(|v| v.value * v.value).sum::<f64>() / n).sqrt();
+    let mut gradient = vars[0].gradient.clone() * 0.0;
+    if value > 0.0 {
+        for v in vars {
+            gradient += &v.gradient * (v.value / (n * value));
+        }
+    }
+    Var { value, gradient }
+}
+
+/// Kyphosis and lordosis from the sagittal slopes (module docs).
+fn sagittal_angles(levels: &[LevelVars]) -> (Option<Var>, Option<Var>) {
+    let slope = |i: usize| levels[i].sagittal.value;
+    let Some(itl) = (0..levels.len()).max_by(|&i, &j| slope(i).total_cmp(&slope(j))) else {
+        return (None, None);
+    };
+    let least =
+        |range: std::ops::Range<usize>| range.min_by(|&i, &j| slope(i).total_cmp(&slope(j)));
+    let angle = |other: Option<usize>| {
+        other.map(|o| Var {
+            value: slope(itl) - slope(o),
+            gradient: &levels[itl].sagittal.gradient - &levels[o].sagittal.gradient,
+        })
+    };
+    // Levels run bottom to top: the cervico-thoracic inflection is above the thoraco-lumbar.
+    (angle(least(itl + 1..levels.len())), angle(least(0..itl)))
+}

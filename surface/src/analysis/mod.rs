@@ -1,0 +1,363 @@
+//! The back analysis: from one subject's frames to the indices a screening reads, each with
+//! its σ.
+//!
+//! Levels are sections across the trunk's axis, one dot spacing apart, where the measured
+//! trunk is at least [`MIN_WIDTH`] of its median width. At each, the symmetry point
+//! ([`crate::symmetry`]) over a window of a quarter of the median width either side, and from
+//! the surface there: the surface rotation atan(∂n/∂a) as the section's mirror symmetry gives
+//! it (the tilt of its mirror axis from n: a section symmetric about that axis has the slope
+//! tan θ at its symmetry point, and the window's points measure it, not the slope at one
+//! point, which the lattice's sampling of the spinous groove would bias), the depth, the
+//! sagittal slope
+//! atan(∂n/∂v), the skin angle of two points 10 % of the line's length either side, and bent
+//! forward the scoliometer's angle ([`crate::scoliometer`]) over a third of the median width
+//! either side. Then along the line: its lateral deviation from the line through its ends, the
+//! trunk imbalance (its top's offset from its bottom across the axis), the trunk inclination
+//! (the angle of the line through its ends from the axis, in the sagittal plane, positive when
+//! the top is nearer the camera), kyphosis and lordosis (standing: the thoraco-lumbar
+//! inflection is where the sagittal slope is largest, the cervico-thoracic and lumbo-sacral
+//! ones where it is least above and below it; kyphosis is the slope's change from the upper to
+//! the middle one, lordosis from the lower). Every value is a function of the fitted surface;
+//! its σ is its gradient carried through the fit's covariance ([`crate::fit`]).
+
+mod back;
+mod indices;
+mod levels;
+
+use crate::fit::{fit, Fit, Sample};
+use crate::input::{same_calibration, Frame};
+use crate::spline::Grid;
+use crate::support::Support;
+use crate::SurfaceError;
+use back::{axes, bounds, check_shape, find_back, Back};
+use levels::Measured;
+use nalgebra::{DMatrix, Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// How the subject stood.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Posture {
+    /// Upright, back to the camera.
+    Standing,
+    /// Bent forward (Adams): the trunk's axis lies across the image.
+    ForwardBent,
+}
+
+/// What the analysis is told.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Standing or bent forward.
+    pub posture: Posture,
+    /// Standing: the trunk's axis, the vertical (default +y).
+    pub vertical: Option<Vector3<f64>>,
+    /// Bent forward: the direction out of the back toward the camera (default +z).
+    pub up: Option<Vector3<f64>>,
+    /// Bent forward: the trunk's axis toward the head (default the back's longest direction
+    /// across `up`, signed toward the image's −x).
+    pub axis: Option<Vector3<f64>>,
+    /// The surface's smoothing length, in dot spacings.
+    pub smoothing: f64,
+}
+
+impl Options {
+    /// A standing back, vertical +y.
+    pub fn standing() -> Self {
+        Self {
+            posture: Posture::Standing,
+            vertical: None,
+            up: None,
+            axis: None,
+            smoothing: 0.4,
+        }
+    }
+
+    /// A back bent forward, up +z.
+    pub fn forward_bent() -> Self {
+        Self {
+            posture: Posture::ForwardBent,
+            ..Self::standing()
+        }
+    }
+}
+
+/// The analysis frame in the camera system: a point X has the coordinates (a, v, n) =
+/// (across·X, axis·X, up·X); across × axis = up.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Axes {
+    /// Across the trunk (the subject's right standing).
+    pub across: [f64; 3],
+    /// Along the trunk's axis: the levels' coordinate.
+    pub axis: [f64; 3],
+    /// Toward the camera: the depth.
+    pub up: [f64; 3],
+}
+
+impl Axes {
+    fn matrix(&self) -> Matrix3<f64> {
+        Matrix3::from_rows(&[
+            Vector3::from(self.across).transpose(),
+            Vector3::from(self.axis).transpose(),
+            Vector3::from(self.up).transpose(),
+        ])
+    }
+}
+
+/// One level of the symmetry line (mm, degrees; `y` and `symmetry_x` are the level's v and
+/// the symmetry point's a in [`Axes`], the camera's y and x standing with the default
+/// vertical).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Level {
+    /// The level.
+    pub y: f64,
+    /// The symmetry point across.
+    pub symmetry_x: f64,
+    /// Its σ.
+    pub symmetry_x_sigma: f64,
+    /// The surface's depth there.
+    pub depth_mm: f64,
+    /// Its σ.
+    pub depth_sigma_mm: f64,
+    /// Surface rotation atan(∂n/∂a) at the symmetry point, positive when the +a side is nearer.
+    pub rotation_deg: f64,
+    /// Its σ.
+    pub rotation_sigma_deg: f64,
+    /// The symmetry point's offset from the line through the ends of the symmetry line.
+    pub lateral_deviation_mm: f64,
+    /// Its σ.
+    pub lateral_deviation_sigma_mm: f64,
+    /// Sagittal slope atan(∂n/∂v) at the symmetry point, positive when the surface comes
+    /// toward the camera going up the trunk.
+    pub sagittal_slope_deg: f64,
+    /// Its σ.
+    pub sagittal_slope_sigma_deg: f64,
+    /// Skin angle: of the line through the surface points [`BackAnalysis::skin_angle_distance_mm`]
+    /// either side (None where they were not measured).
+    pub skin_angle_deg: Option<f64>,
+    /// Its σ.
+    pub skin_angle_sigma_deg: Option<f64>,
+    /// Bent forward: the virtual scoliometer's angle (ATR).
+    pub atr_deg: Option<f64>,
+    /// Its σ.
+    pub atr_sigma_deg: Option<f64>,
+    /// The window (a from, a to) the scoliometer rested on.
+    pub atr_window: Option<[f64; 2]>,
+}
+
+/// A map over the analysis plane: `values[j * a.len() + i]` at (a[i], v[j]) (mm).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Map {
+    /// Across.
+    pub a: Vec<f64>,
+    /// Along (the levels).
+    pub v: Vec<f64>,
+    /// The values (None off the measured surface).
+    pub values: Vec<Option<f64>>,
+    /// Their σ (None where not computed).
+    pub sigmas: Vec<Option<f64>>,
+}
+
+/// A frame's sway relative to the first: the subject's rotation (about the first frame's
+/// centre of points) and translation, in [`Axes`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Sway {
+    /// The frame (1, 2, …).
+    pub frame: usize,
+    /// Rotation vector (degrees) about across, axis, up.
+    pub rotation_deg: [f64; 3],
+    /// Its σ.
+    pub rotation_sigma_deg: [f64; 3],
+    /// Translation (mm).
+    pub translation_mm: [f64; 3],
+    /// Its σ.
+    pub translation_sigma_mm: [f64; 3],
+}
+
+/// The measures of one back (mm, degrees; each with its σ).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BackAnalysis {
+    /// How the subject stood.
+    pub posture: Posture,
+    /// Frames combined.
+    pub frames: usize,
+    /// Points on the back, all frames.
+    pub points: usize,
+    /// The calibration's fingerprint.
+    pub calibration: Option<u64>,
+    /// The dot spacing on the back.
+    pub spacing_mm: f64,
+    /// The analysis frame.
+    pub axes: Axes,
+    /// Half-width of the symmetry window.
+    pub symmetry_window_mm: f64,
+    /// The skin angle's distance either side of the symmetry line.
+    pub skin_angle_distance_mm: f64,
+    /// The normalised residuals' RMS of the surface fit (about 1 when the points' σ hold).
+    pub fit_chi: f64,
+    /// The symmetry line, level by level (bottom to top).
+    pub levels: Vec<Level>,
+    /// The largest surface rotation (the signed value of largest magnitude).
+    pub rotation_max_deg: f64,
+    /// Its σ.
+    pub rotation_max_deg_sigma: f64,
+    /// RMS of the surface rotation over the levels.
+    pub rotation_rms_deg: f64,
+    /// Its σ.
+    pub rotation_rms_deg_sigma: f64,
+    /// The largest lateral deviation (signed).
+    pub lateral_deviation_max_mm: f64,
+    /// Its σ.
+    pub lateral_deviation_max_mm_sigma: f64,
+    /// RMS of the lateral deviation.
+    pub lateral_deviation_rms_mm: f64,
+    /// Its σ.
+    pub lateral_deviation_rms_mm_sigma: f64,
+    /// The top of the symmetry line across from its bottom (+a: toward the subject's right).
+    pub trunk_imbalance_mm: f64,
+    /// Its σ.
+    pub trunk_imbalance_mm_sigma: f64,
+    /// The sagittal angle of the line through the ends from the axis.
+    pub trunk_inclination_deg: f64,
+    /// Its σ.
+    pub trunk_inclination_deg_sigma: f64,
+    /// Kyphosis (standing, when both inflections are in view).
+    pub kyphosis_deg: Option<f64>,
+    /// Its σ.
+    pub kyphosis_deg_sigma: Option<f64>,
+    /// Lordosis (standing, when both inflections are in view).
+    pub lordosis_deg: Option<f64>,
+    /// Its σ.
+    pub lordosis_deg_sigma: Option<f64>,
+    /// Bent forward: the largest scoliometer angle (signed).
+    pub atr_max_deg: Option<f64>,
+    /// Its σ.
+    pub atr_max_deg_sigma: Option<f64>,
+    /// Each later frame's sway relative to the first.
+    pub sway: Vec<Sway>,
+    /// The depth difference to the surface mirrored about the symmetry line, s(a) − s(2x − a).
+    pub asymmetry: Map,
+    /// The surface's depth.
+    pub topography: Map,
+}
+
+/// Fewer points than this in a frame are not a back.
+pub const MIN_POINTS: usize = 40;
+/// A back departs from its best plane by tens of mm; a cloud within this RMS is a plane.
+pub const PLANE_RMS_MM: f64 = 5.0;
+/// Levels where the trunk is narrower than this share of its median width are left out.
+pub const MIN_WIDTH: f64 = 0.6;
+/// The most coefficients the surface has (its knots spread beyond the dot spacing then).
+const MAX_COEFFICIENTS: usize = 1600;
+/// Analyses one subject's frames (one calibration): registers them onto the first, fits one
+/// surface to all, and measures it.
+pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, SurfaceError> {
+    same_calibration(frames)?;
+    for (k, f) in frames.iter().enumerate() {
+        f.validate(k)?;
+    }
+    if !(options.smoothing > 0.0 && options.smoothing.is_finite()) {
+        return Err(SurfaceError::BadOptions(format!(
+            "the smoothing must be positive, got {}",
+            options.smoothing
+        )));
+    }
+    let found = frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| find_back(f, k))
+        .collect::<Result<Vec<_>, _>>()?;
+    let first: Vec<Vector3<f64>> = found[0]
+        .0
+        .iter()
+        .map(|&i| frames[0].points[i].position)
+        .collect();
+    let axes = axes(options, &first)?;
+    let rot = axes.matrix();
+    let rot_d = DMatrix::from_fn(3, 3, |r, c| rot[(r, c)]);
+    let backs: Vec<Back> = frames
+        .iter()
+        .zip(found)
+        .map(|(f, (kept, triangles, spacing))| Back {
+            positions: f.points.iter().map(|p| rot * p.position).collect(),
+            kept,
+            triangles,
+            spacing,
+        })
+        .collect();
+    for (k, b) in backs.iter().enumerate() {
+        check_shape(b, k)?;
+    }
+    let samples: Vec<Sample> = backs
+        .iter()
+        .zip(frames)
+        .enumerate()
+        .flat_map(|(k, (b, f))| {
+            let rot_d = &rot_d;
+            b.kept.iter().map(move |&i| Sample {
+                p: b.positions[i],
+                cov: rot * f.points[i].covariance * rot.transpose(),
+                common: rot_d * f.common.sensitivity(i),
+                frame: k,
+            })
+        })
+        .collect();
+    let spacing = backs[0].spacing;
+    let (lo, hi) = bounds(&samples);
+    let margin = 2.0 * spacing;
+    let (lo, hi) = (
+        [lo[0] - margin, lo[1] - margin],
+        [hi[0] + margin, hi[1] + margin],
+    );
+    let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
+    let step =
+        (spacing / (frames.len() as f64).sqrt()).max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1);
+    let grid = Grid::covering(lo, hi, step);
+    let smoothing = options.smoothing * spacing;
+    let lambda = (smoothing / step).powi(4) * (step / spacing).powi(2);
+    let surface = fit(
+        &samples,
+        frames.len(),
+        grid,
+        lambda,
+        frames[0].common.covariance(),
+    )?;
+    let mut support = Support::new(lo, hi, step / 4.0);
+    for (k, b) in backs.iter().enumerate() {
+        let pose = surface.poses[k];
+        let moved = |i: usize| surface.centre + pose.r * (b.positions[i] - surface.centre) + pose.t;
+        for t in &b.triangles {
+            support.fill(t.map(moved));
+        }
+    }
+    let measured = Measured {
+        fit: &surface,
+        support: &support,
+        posture: options.posture,
+    };
+    let mut analysis = measured.analyse(spacing)?;
+    analysis.frames = frames.len();
+    analysis.points = samples.len();
+    analysis.calibration = frames[0].calibration;
+    analysis.axes = axes;
+    analysis.sway = sway(&surface);
+    Ok(analysis)
+}
+fn sway(fit: &Fit) -> Vec<Sway> {
+    (1..fit.poses.len())
+        .map(|k| {
+            let grads: Vec<_> = (0..6).map(|j| fit.pose_gradient(k, j)).collect();
+            let sigma: Vec<f64> = fit.variances(&grads).iter().map(|v| v.sqrt()).collect();
+            // The pose maps frame k onto frame 0; the subject moved by its inverse.
+            let inverse = fit.poses[k].r.inverse();
+            let w = inverse.scaled_axis();
+            let t = -(inverse * fit.poses[k].t);
+            Sway {
+                frame: k,
+                rotation_deg: [w.x, w.y, w.z].map(f64::to_degrees),
+                rotation_sigma_deg: [sigma[0], sigma[1], sigma[2]].map(f64::to_degrees),
+                translation_mm: [t.x, t.y, t.z],
+                translation_sigma_mm: [sigma[3], sigma[4], sigma[5]],
+            }
+        })
+        .collect()
+}
