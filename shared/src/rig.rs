@@ -218,8 +218,8 @@ impl<T: RealField + Copy, S: RayStore<T>> Rig<T, S> {
 impl<S: AsRef<[ProjectorRay<f64>]>> Rig<f64, S> {
     /// The device's f32 rig, cast as an upload does: centred in f64 first (the projector centre
     /// is X_p − X0), then every parameter rounded to f32; the camera centre too (the device
-    /// returns camera-centred points and the host adds X0 back in f64). The rays are collected
-    /// into `C` (a `Vec`, or a `heapless::Vec` large enough).
+    /// answers depths, which the host places in f64, see [`Rig::reconstruct_at_depth`]). The
+    /// rays are collected into `C` (a `Vec`, or a `heapless::Vec` large enough).
     pub fn cast<C>(&self) -> Result<Rig<f32, C>>
     where
         C: FromIterator<ProjectorRay<f32>> + AsRef<[ProjectorRay<f32>]>,

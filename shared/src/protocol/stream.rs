@@ -322,8 +322,8 @@ pub struct FrameWriter<F: Flavor> {
     ids: i32,
 }
 
-/// postcard's `CrcModifier` with a bulk path: a point's 10 bytes go through one CRC update
-/// (`try_extend`) instead of ten.
+/// postcard's `CrcModifier` with a bulk path: a point's 3 bytes go through one CRC update
+/// (`try_extend`) instead of three.
 struct Checksummed<F> {
     inner: F,
     digest: crc::Digest<'static, u32>,
