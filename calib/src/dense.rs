@@ -102,35 +102,34 @@ pub fn spd_inverse(chol: &Cholesky<f64, Dyn>) -> DMatrix<f64> {
 /// cores (the whole product's columns to rounding: a piece may group its sums otherwise).
 pub fn transpose_times(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
     let at = a.transpose();
-    let (rows, cols) = (at.nrows(), b.ncols());
-    let mut product = DMatrix::zeros(rows, cols);
-    product
-        .as_mut_slice()
-        .par_chunks_mut((PRODUCT_COLUMNS * rows).max(1))
-        .enumerate()
-        .for_each(|(c, out)| {
-            let first = c * PRODUCT_COLUMNS;
-            let width = out.len() / rows.max(1);
-            let piece = &at * b.columns(first, width);
-            out.copy_from_slice(piece.as_slice());
-        });
-    product
+    by_column_blocks(at.nrows(), b.ncols(), |first, width| {
+        &at * b.columns(first, width)
+    })
 }
 
 /// A Bᵀ by the blocked matrix multiplication, [`PRODUCT_COLUMNS`] rows of B at a time on all
 /// cores (the whole product's columns to rounding: a piece may group its sums otherwise).
 pub fn times_transpose(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
-    let (rows, cols) = (a.nrows(), b.nrows());
+    by_column_blocks(a.nrows(), b.nrows(), |first, width| {
+        a * b.rows(first, width).transpose()
+    })
+}
+
+/// A `rows` × `cols` product assembled from its blocks of [`PRODUCT_COLUMNS`] columns,
+/// `piece(first, width)` each, on all cores.
+fn by_column_blocks(
+    rows: usize,
+    cols: usize,
+    piece: impl Fn(usize, usize) -> DMatrix<f64> + Sync,
+) -> DMatrix<f64> {
     let mut product = DMatrix::zeros(rows, cols);
     product
         .as_mut_slice()
         .par_chunks_mut((PRODUCT_COLUMNS * rows).max(1))
         .enumerate()
         .for_each(|(c, out)| {
-            let first = c * PRODUCT_COLUMNS;
             let width = out.len() / rows.max(1);
-            let piece = a * b.rows(first, width).transpose();
-            out.copy_from_slice(piece.as_slice());
+            out.copy_from_slice(piece(c * PRODUCT_COLUMNS, width).as_slice());
         });
     product
 }

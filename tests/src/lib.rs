@@ -38,32 +38,43 @@ pub fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
+/// `cargo build ARGS` in the workspace (once per `cache`, per test process): the file at
+/// `built` below the target directory (`CARGO_TARGET_DIR`, or `target`).
+fn built_once(cache: &'static OnceLock<PathBuf>, args: &[&str], built: &str) -> PathBuf {
+    cache
+        .get_or_init(|| {
+            let root = workspace_root();
+            let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+            let status = Command::new(cargo)
+                .current_dir(&root)
+                .arg("build")
+                .args(args)
+                .status()
+                .unwrap_or_else(|e| panic!("run cargo to build {built}: {e}"));
+            assert!(status.success(), "the build of {built} failed");
+            let target = std::env::var_os("CARGO_TARGET_DIR")
+                .map(PathBuf::from)
+                .unwrap_or(root.join("target"));
+            target.join(built)
+        })
+        .clone()
+}
+
 /// The firmware ELF for `mps2-an386`, built once per test process with
 /// `cargo build -p deltaz-firmware --target thumbv7em-none-eabihf --release`.
 pub fn firmware_elf() -> PathBuf {
     static ELF: OnceLock<PathBuf> = OnceLock::new();
-    ELF.get_or_init(|| {
-        let root = workspace_root();
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let status = Command::new(cargo)
-            .current_dir(&root)
-            .args([
-                "build",
-                "-p",
-                "deltaz-firmware",
-                "--target",
-                "thumbv7em-none-eabihf",
-                "--release",
-            ])
-            .status()
-            .expect("run cargo to build the firmware");
-        assert!(status.success(), "the firmware build failed");
-        let target = std::env::var_os("CARGO_TARGET_DIR")
-            .map(PathBuf::from)
-            .unwrap_or(root.join("target"));
-        target.join("thumbv7em-none-eabihf/release/mps2_an386")
-    })
-    .clone()
+    built_once(
+        &ELF,
+        &[
+            "-p",
+            "deltaz-firmware",
+            "--target",
+            "thumbv7em-none-eabihf",
+            "--release",
+        ],
+        "thumbv7em-none-eabihf/release/mps2_an386",
+    )
 }
 
 /// The real board's firmware ELF (`nucleo_f401re`), built once per test process with
@@ -71,49 +82,32 @@ pub fn firmware_elf() -> PathBuf {
 /// nucleo-f401re --bin nucleo_f401re`.
 pub fn nucleo_elf() -> PathBuf {
     static ELF: OnceLock<PathBuf> = OnceLock::new();
-    ELF.get_or_init(|| {
-        let root = workspace_root();
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let status = Command::new(cargo)
-            .current_dir(&root)
-            .args(["build", "-p", "deltaz-firmware", "--target"])
-            .args([
-                "thumbv7em-none-eabihf",
-                "--release",
-                "--features",
-                "nucleo-f401re",
-            ])
-            .args(["--bin", "nucleo_f401re"])
-            .status()
-            .expect("run cargo to build the nucleo_f401re firmware");
-        assert!(status.success(), "the nucleo_f401re build failed");
-        let target = std::env::var_os("CARGO_TARGET_DIR")
-            .map(PathBuf::from)
-            .unwrap_or(root.join("target"));
-        target.join("thumbv7em-none-eabihf/release/nucleo_f401re")
-    })
-    .clone()
+    built_once(
+        &ELF,
+        &[
+            "-p",
+            "deltaz-firmware",
+            "--target",
+            "thumbv7em-none-eabihf",
+            "--release",
+            "--features",
+            "nucleo-f401re",
+            "--bin",
+            "nucleo_f401re",
+        ],
+        "thumbv7em-none-eabihf/release/nucleo_f401re",
+    )
 }
 
 /// The `deltaz` command-line program, built once per test process with `cargo build -p
 /// deltaz-host --release --bin deltaz`.
 pub fn deltaz_binary() -> PathBuf {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
-    BIN.get_or_init(|| {
-        let root = workspace_root();
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let status = Command::new(cargo)
-            .current_dir(&root)
-            .args(["build", "-p", "deltaz-host", "--release", "--bin", "deltaz"])
-            .status()
-            .expect("run cargo to build deltaz");
-        assert!(status.success(), "the deltaz build failed");
-        let target = std::env::var_os("CARGO_TARGET_DIR")
-            .map(PathBuf::from)
-            .unwrap_or(root.join("target"));
-        target.join("release/deltaz")
-    })
-    .clone()
+    built_once(
+        &BIN,
+        &["-p", "deltaz-host", "--release", "--bin", "deltaz"],
+        "release/deltaz",
+    )
 }
 
 /// The static RAM of a Cortex-M ELF (bytes): what its allocated sections at the RAM's base

@@ -395,6 +395,8 @@ impl<T: Transport> Device<T> {
     ) -> Result<Vec<Vec<PointOutcome>>> {
         let (calibration, rig) = self.placing()?;
         let mut orders = Vec::with_capacity(frames.len());
+        // Each request's rays and the pixels its fixed point stands for, in the wire's order.
+        let mut sent: Vec<Vec<(u16, (f64, f64))>> = Vec::with_capacity(frames.len());
         let mut requests = Vec::with_capacity(frames.len());
         let mut first = 0;
         for frame in frames {
@@ -405,34 +407,32 @@ impl<T: Transport> Device<T> {
             let mut order: Vec<usize> = (0..frame.len()).collect();
             order.sort_by_key(|&i| frame[i].0);
             let mut wire = heapless::Vec::new();
+            let mut placed = Vec::with_capacity(frame.len());
             for &i in &order {
                 let (id, col, row) = frame[i];
                 let c = Centroid::from_pixel(id, col, row, calibration.centroid_bits)
                     .ok_or(DeviceError::Centroid(first + i))?;
+                placed.push((id, c.pixel(calibration.centroid_bits)));
                 wire.push(c)
                     .unwrap_or_else(|_| unreachable!("at most MAX_BATCH per frame"));
             }
             first += frame.len();
             orders.push(order);
+            sent.push(placed);
             requests.push(RequestBody::Compute { centroids: wire });
         }
         let mut out: Vec<Vec<PointOutcome>> = Vec::with_capacity(frames.len());
         out.resize_with(frames.len(), Vec::new);
         let mut fingerprints = Vec::new();
-        let sent = requests.clone();
         self.pipeline(requests, |k, body| match body {
             ResponseBody::Points {
                 fingerprint,
                 points,
             } if points.len() == orders[k].len() => {
                 fingerprints.push(fingerprint);
-                let RequestBody::Compute { centroids } = &sent[k] else {
-                    unreachable!("compute requests only")
-                };
                 let mut results = vec![Err(PointStatus::Degenerate); points.len()];
-                for ((&i, c), p) in orders[k].iter().zip(centroids).zip(&points) {
-                    let pixel = c.pixel(calibration.centroid_bits);
-                    results[i] = place(&rig, &calibration, c.id, pixel, p);
+                for ((&i, &(id, pixel)), p) in orders[k].iter().zip(&sent[k]).zip(&points) {
+                    results[i] = place(&rig, &calibration, id, pixel, p);
                 }
                 out[k] = results;
                 Ok(())
@@ -463,43 +463,38 @@ impl<T: Transport> Device<T> {
         let (calibration, rig) = self.placing()?;
         let mut requests = Vec::with_capacity(frames.len());
         // The frame of each request, and each request's length.
-        let (mut owners, mut lens) = (Vec::new(), Vec::new());
+        let (mut owners, mut sent) = (Vec::new(), Vec::new());
         let mut first = 0;
         for (k, frame) in frames.iter().enumerate() {
             for batch in frame.as_ref().chunks(MAX_BATCH) {
                 let mut wire = heapless::Vec::new();
+                let mut pixels = Vec::with_capacity(batch.len());
                 for (i, &(col, row)) in batch.iter().enumerate() {
                     let dot = Dot::from_pixel(col, row, calibration.centroid_bits)
                         .ok_or(DeviceError::Centroid(first + i))?;
+                    pixels.push(dot.pixel(calibration.centroid_bits));
                     wire.push(dot)
                         .unwrap_or_else(|_| unreachable!("at most MAX_BATCH dots"));
                 }
                 first += batch.len();
                 owners.push(k);
-                lens.push(batch.len());
+                sent.push(pixels);
                 requests.push(RequestBody::Identify { dots: wire });
             }
         }
         let mut batches: Vec<Vec<(u16, PointOutcome)>> = Vec::new();
         batches.resize_with(requests.len(), Vec::new);
         let mut fingerprints = Vec::new();
-        let sent = requests.clone();
         self.pipeline(requests, |b, body| match body {
             ResponseBody::Identified {
                 fingerprint,
                 points,
-            } if points.len() == lens[b] => {
+            } if points.len() == sent[b].len() => {
                 fingerprints.push(fingerprint);
-                let RequestBody::Identify { dots } = &sent[b] else {
-                    unreachable!("identify requests only")
-                };
                 batches[b] = points
                     .iter()
-                    .zip(dots)
-                    .map(|(p, dot)| {
-                        let pixel = dot.pixel(calibration.centroid_bits);
-                        (p.id, place(&rig, &calibration, p.id, pixel, &p.result))
-                    })
+                    .zip(&sent[b])
+                    .map(|(p, &pixel)| (p.id, place(&rig, &calibration, p.id, pixel, &p.result)))
                     .collect();
                 Ok(())
             }

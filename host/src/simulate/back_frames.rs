@@ -13,13 +13,12 @@
 //! bent forward, each swayed.
 
 use super::back::{BackModel, Deformity, Part, Pose, Posture};
-use super::images::{ellipse, on_sensor, scene, true_rig, ImageSpec};
+use super::images::{camera_at_origin, ellipse, on_sensor, scene, true_rig, ImageSpec};
 use super::pattern::ID_STRIDE;
 use super::Scenario;
 use crate::io::system_file::SystemRig;
 use anyhow::Result;
 use deltaz_measure::render::{Rendered, Spot};
-use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use nalgebra::{Vector2, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -165,20 +164,6 @@ pub struct BackFrame {
     pub dots: Vec<BackDot>,
     /// The image.
     pub image: Rendered,
-}
-
-/// The rig's camera at the origin of the camera system, unrotated.
-fn camera_at_origin(rig: &SystemRig) -> Camera<f64> {
-    Camera {
-        grid: *rig.grid(),
-        inner: *rig.inner(),
-        exterior: ExteriorOrientation {
-            kappa: 0.0,
-            phi: 0.0,
-            omega: 0.0,
-            centre: Vector3::zeros(),
-        },
-    }
 }
 
 /// The dots of `rig`'s projector on `model` its camera sees, each with the spot it makes in the

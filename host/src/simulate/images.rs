@@ -283,3 +283,17 @@ pub fn write_images(scenario: &Scenario, seed: u64, spec: &ImageSpec, dir: &Path
     write_observations(&out.join("centres.csv"), &centres)?;
     Ok(count)
 }
+
+/// The rig's camera at the origin of the camera system, unrotated.
+pub(crate) fn camera_at_origin(rig: &crate::io::system_file::SystemRig) -> Camera<f64> {
+    Camera {
+        grid: *rig.grid(),
+        inner: *rig.inner(),
+        exterior: ExteriorOrientation {
+            kappa: 0.0,
+            phi: 0.0,
+            omega: 0.0,
+            centre: Vector3::zeros(),
+        },
+    }
+}

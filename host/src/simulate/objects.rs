@@ -7,11 +7,11 @@
 //! Everything is in the camera-centred frame of [`super::images::true_rig`] (camera at the
 //! origin, looking along −Z). Dots are drawn as circles centred on their true pixels.
 
-use super::{images::true_rig, Scenario};
+use super::images::{camera_at_origin, true_rig};
+use super::Scenario;
 use crate::io::system_file::SystemRig;
 use anyhow::Result;
 use deltaz_measure::render::{Background, Scene, Spot};
-use deltaz_shared::collinearity::{Camera, ExteriorOrientation};
 use nalgebra::Vector3;
 use serde::Serialize;
 use std::io::Write;
@@ -121,16 +121,7 @@ pub fn torso_height(x: f64, y: f64) -> f64 {
 /// The dots of `rig`'s projector on `object` that the camera sees (the surface facing it,
 /// within 60° of the line of sight, so that no dots merge; at least 10 pixels inside the sensor).
 pub fn object_dots(rig: &SystemRig, object: &Object) -> Vec<ObjectDot> {
-    let camera = Camera {
-        grid: *rig.grid(),
-        inner: *rig.inner(),
-        exterior: ExteriorOrientation {
-            kappa: 0.0,
-            phi: 0.0,
-            omega: 0.0,
-            centre: Vector3::zeros(),
-        },
-    };
+    let camera = camera_at_origin(rig);
     let projector = rig.projector_centred();
     let (w, h) = (f64::from(rig.grid().width), f64::from(rig.grid().height));
     projector

@@ -244,10 +244,7 @@ pub fn upload(
             "generation": s.generation,
             "rays": s.rays,
             "centroid_bits": s.centroid_bits,
-            "method": match method {
-                Method::Paper => "paper",
-                Method::ClosestApproach => "closest",
-            },
+            "method": method_name(method.into()),
             "identification": identification.map(|i| serde_json::json!({
                 "near_mm": i.near,
                 "far_mm": i.far,

@@ -5,7 +5,7 @@
 //! second trunk of other proportions, four bent forward, and three swayed frames combined.
 //! Every σ is checked by the RMS of error/σ over the draws (0.8-1.25).
 
-use crate::back_sim::{scans, IndexErrors};
+use crate::back_sim::{check_line_and_rotation, scans, Bars, IndexErrors, ISSUE_BARS};
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_surface::Options;
 use nalgebra::Vector3;
@@ -34,30 +34,13 @@ fn report(what: &str, e: &IndexErrors) {
 /// propagated from the points, does not hold).
 fn check_with(what: &str, e: &IndexErrors, line_z: f64) {
     report(what, e);
-    assert!(
-        e.symmetry_x.count() >= 30 * 15,
-        "{what}: {} levels",
-        e.symmetry_x.count()
-    );
-    assert!(
-        e.rotation.rms() <= 0.5,
-        "{what}: rotation RMS {:.3}°",
-        e.rotation.rms()
-    );
-    assert!(
-        e.symmetry_x.rms() <= 2.0,
-        "{what}: symmetry line RMS {:.2} mm",
-        e.symmetry_x.rms()
-    );
-    let z = e.rotation.z();
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "{what}: rotation RMS of error/σ {z:.2}"
-    );
-    let z = e.symmetry_x.z();
-    assert!(
-        (0.8..=line_z).contains(&z),
-        "{what}: symmetry line RMS of error/σ {z:.2}"
+    check_line_and_rotation(
+        what,
+        e,
+        Bars {
+            line_z,
+            ..ISSUE_BARS
+        },
     );
 }
 

@@ -303,6 +303,52 @@ impl IndexErrors {
     }
 }
 
+/// How far σ may understate the error: the upper bars on the RMS of error/σ of the surface
+/// rotation and the symmetry line (the lower one is 0.8).
+#[derive(Clone, Copy)]
+pub struct Bars {
+    /// Rotation.
+    pub rotation_z: f64,
+    /// Symmetry line.
+    pub line_z: f64,
+}
+
+/// The issue's bars: 1.25 for both.
+pub const ISSUE_BARS: Bars = Bars {
+    rotation_z: 1.25,
+    line_z: 1.25,
+};
+
+/// The issue's bars for the symmetry line and the surface rotation: at least 15 levels a draw
+/// over 30 draws, rotation ≤ 0.5° RMS per level, symmetry line ≤ 2 mm RMS, both with an RMS of
+/// error/σ within 0.8 and `bars`.
+pub fn check_line_and_rotation(what: &str, e: &IndexErrors, bars: Bars) {
+    assert!(
+        e.symmetry_x.count() >= 30 * 15,
+        "{what}: {} levels",
+        e.symmetry_x.count()
+    );
+    assert!(
+        e.rotation.rms() <= 0.5,
+        "{what}: rotation RMS {:.3}°",
+        e.rotation.rms()
+    );
+    assert!(
+        e.symmetry_x.rms() <= 2.0,
+        "{what}: symmetry line RMS {:.2} mm",
+        e.symmetry_x.rms()
+    );
+    for (name, z, bar) in [
+        ("rotation", e.rotation.z(), bars.rotation_z),
+        ("symmetry line", e.symmetry_x.z(), bars.line_z),
+    ] {
+        assert!(
+            (0.8..=bar).contains(&z),
+            "{what}: {name} RMS of error/σ {z:.2}"
+        );
+    }
+}
+
 /// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), each
 /// with its own noise and common error, analysed with `options`.
 pub fn scans(
