@@ -112,8 +112,8 @@ impl Active {
             return PointResult::Failed(PointStatus::OffSensor);
         }
         let (col, row) = dot.pixel::<f32>(bits);
-        match rig.reconstruct_from(cursor, id, col, row, self.method) {
-            Ok(hit) => PointResult::from_depth(rig.depth_of(&hit)),
+        match rig.depth_from(cursor, id, col, row, self.method) {
+            Ok(depth) => PointResult::from_depth(depth),
             Err(e) => PointResult::from_error(e),
         }
     }

@@ -79,6 +79,13 @@ pub fn closest_approach<T: RealField + Copy>(
     camera: &Ray<T>,
     projector: &Ray<T>,
 ) -> Result<Intersection<T>> {
+    let (lambda, lambda_p) = closest_lambdas(camera, projector)?;
+    Ok(average(camera, projector, lambda, lambda_p))
+}
+
+/// λ and λp of [`closest_approach`] alone.
+#[inline]
+pub fn closest_lambdas<T: RealField + Copy>(camera: &Ray<T>, projector: &Ray<T>) -> Result<(T, T)> {
     let normal = camera.direction.cross(&projector.direction);
     let n2 = normal.norm_squared();
     let lengths2 = camera.direction.norm_squared() * projector.direction.norm_squared();
@@ -88,7 +95,7 @@ pub fn closest_approach<T: RealField + Copy>(
     let d = projector.point - camera.point;
     let lambda = d.cross(&projector.direction).dot(&normal) / n2;
     let lambda_p = d.cross(&camera.direction).dot(&normal) / n2;
-    Ok(average(camera, projector, lambda, lambda_p))
+    Ok((lambda, lambda_p))
 }
 
 /// The paper's intersection given λ (a device's answer): λp from the X and Z equations of

@@ -9,7 +9,8 @@
 use crate::camera::{InnerOrientation, PixelGrid};
 use crate::collinearity::{camera_ray_direction, project_camera_point, ExteriorOrientation};
 use crate::intersection::{
-    closest_approach, closest_approach_at, intersect_paper, paper_at, Intersection,
+    closest_approach, closest_approach_at, closest_lambdas, intersect_paper, lambdas_eq8_eq9,
+    paper_at, Intersection,
 };
 use crate::projector::{Projector, ProjectorRay, Ray, RayCursor, RayStore};
 use crate::{Error, Result};
@@ -208,10 +209,24 @@ impl<T: RealField + Copy, S: RayStore<T>> Rig<T, S> {
         Ok(hit)
     }
 
-    /// The depth of an intersection with this rig's camera ray (mm in front of the camera along
-    /// its axis): λ·f (eqs 6-7: −z of the camera system is λ·f).
-    pub fn depth_of(&self, hit: &Intersection<T>) -> T {
-        hit.lambda * self.inner.f
+    /// The depth of dot `id` observed at pixel (col, row), the ray found from `cursor`: λ·f of
+    /// [`Rig::reconstruct_from`]'s intersection (mm in front of the camera along its axis; eqs
+    /// 6-7: −z of the camera system is λ·f), without its point (what a device answers).
+    pub fn depth_from(
+        &self,
+        cursor: &mut RayCursor,
+        id: u16,
+        col: T,
+        row: T,
+        method: Method,
+    ) -> Result<T> {
+        let projector = self.projector.ray_from(cursor, id)?;
+        let camera = self.camera_ray(col, row);
+        let (lambda, _) = match method {
+            Method::Paper => lambdas_eq8_eq9(&camera, &projector)?,
+            Method::ClosestApproach => closest_lambdas(&camera, &projector)?,
+        };
+        Ok(lambda * self.inner.f)
     }
 }
 

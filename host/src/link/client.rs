@@ -3,6 +3,7 @@
 use super::calibration::calibration_blob_identifying;
 use super::in_process::InProcess;
 use super::Transport;
+use deltaz_calib::reconstruct::SystemRig;
 use deltaz_shared::projector::{Projector, ProjectorRay};
 use deltaz_shared::protocol::calibration::IdentifyParams;
 use deltaz_shared::protocol::frame::CRC;
@@ -145,9 +146,6 @@ pub struct WorldPoint {
     pub miss: f64,
 }
 
-/// A calibration as the host holds it, in f64: what the device's depths are placed with.
-pub type HostRig = Rig<f64, Vec<ProjectorRay<f64>>>;
-
 /// A device behind a transport.
 pub struct Device<T> {
     transport: T,
@@ -159,8 +157,9 @@ pub struct Device<T> {
     drained: bool,
     pending: Vec<u8>,
     calibration: Option<CalibrationSummary>,
-    /// The calibration the host holds for the device, by fingerprint.
-    held: Option<(u64, Arc<HostRig>)>,
+    /// The calibration the host holds for the device (in f64: what its depths are placed
+    /// with), by fingerprint.
+    held: Option<(u64, Arc<SystemRig>)>,
     sent: u64,
     received: u64,
     line: LineCounts,
@@ -523,7 +522,7 @@ impl<T: Transport> Device<T> {
     }
 
     /// The active calibration and the rig the host holds for it.
-    fn placing(&mut self) -> Result<(CalibrationSummary, Arc<HostRig>)> {
+    fn placing(&mut self) -> Result<(CalibrationSummary, Arc<SystemRig>)> {
         let calibration = self.calibration()?;
         match &self.held {
             Some((fingerprint, rig)) if *fingerprint == calibration.fingerprint => {
@@ -790,7 +789,7 @@ fn fresh_seq() -> u32 {
 /// The world point of the device's result for the dot of ray `id` it was sent at `pixel`
 /// (the fixed point's position): placed at the device's depth by the calibration's method.
 fn place(
-    rig: &HostRig,
+    rig: &SystemRig,
     calibration: &CalibrationSummary,
     id: u16,
     (col, row): (f64, f64),

@@ -12,8 +12,8 @@ mod serial;
 
 pub use calibration::{calibration_blob, calibration_blob_identifying};
 pub use client::{
-    Device, DeviceError, HostRig, LineCounts, PointOutcome, WorldPoint, DEFAULT_TIMEOUT,
-    DEFAULT_WINDOW, TRIES,
+    Device, DeviceError, LineCounts, PointOutcome, WorldPoint, DEFAULT_TIMEOUT, DEFAULT_WINDOW,
+    TRIES,
 };
 pub use in_process::{InProcess, InProcessFlash};
 pub use qemu::Qemu;

@@ -223,7 +223,9 @@ fn placed_at_its_depth_an_intersection_is_found_again() {
                 let (col, row) = (col + 1.5 * k as f64, row - 2.0 + 3.0 * k as f64);
                 for method in [Method::Paper, Method::ClosestApproach] {
                     let hit = rig.reconstruct(ray.id, col, row, method).unwrap();
-                    let at = rig.depth_of(&hit);
+                    let at = rig
+                        .depth_from(&mut Default::default(), ray.id, col, row, method)
+                        .unwrap();
                     let on_camera = rig.camera_ray(col, row).at(hit.lambda);
                     assert!(((r * on_camera).z + at).abs() < 1e-9, "depth is −z");
                     let placed = rig

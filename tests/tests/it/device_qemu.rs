@@ -77,7 +77,7 @@ fn qemu_upload_stream_reset() {
     );
     // Under -icount the count is the same on every run: the answer's encoding and its bytes
     // into the UART included. 639 when the device placed the point and its miss distance
-    // (protocol 5); 420 answering the depth (λ·f) alone.
+    // (protocol 5); 376 computing and answering the depth (λ·f) alone.
     assert!(ticks > 0, "SysTick counts under -icount");
     assert!(
         per_point <= 460,

@@ -43,6 +43,22 @@ struct Host {
 }
 
 impl Host {
+    /// A host sending `frames` (in a loop until byte time `until`, once when 0), then `last`.
+    fn new(frames: Vec<Vec<u8>>, last: Vec<u8>, until: usize) -> Self {
+        Self {
+            frames,
+            last,
+            until,
+            next: (0, 0),
+            flight: VecDeque::new(),
+            time: 0,
+            delivered: 0,
+            arrived: Vec::new(),
+            answered: Vec::new(),
+            high_water: 0,
+        }
+    }
+
     /// One byte time: the next request byte, if the window lets it go, arrives in `ring`.
     /// Whether a byte arrived.
     fn tick(&mut self, ring: &RxRing<RX_RING>) -> bool {
@@ -143,18 +159,7 @@ fn two_440_dot_requests_in_flight_fit_the_ring_at_line_rate() {
     });
 
     let ring = RxRing::<RX_RING>::new();
-    let host = RefCell::new(Host {
-        frames: frames.clone(),
-        last: reset,
-        until: 0,
-        next: (0, 0),
-        flight: VecDeque::new(),
-        time: 0,
-        delivered: 0,
-        arrived: Vec::new(),
-        answered: Vec::new(),
-        high_water: 0,
-    });
+    let host = RefCell::new(Host::new(frames.clone(), reset, 0));
     let mut uart = Uart {
         host: &host,
         ring: &ring,
@@ -258,18 +263,7 @@ fn ten_minutes_of_streaming_feed_the_watchdog_by_progress() {
         NoProbe,
     ));
     let ring = RxRing::<RX_RING>::new();
-    let host = RefCell::new(Host {
-        frames,
-        last: reset,
-        until: 600 * BYTE_TIMES_PER_S,
-        next: (0, 0),
-        flight: VecDeque::new(),
-        time: 0,
-        delivered: 0,
-        arrived: Vec::new(),
-        answered: Vec::new(),
-        high_water: 0,
-    });
+    let host = RefCell::new(Host::new(frames, reset, 600 * BYTE_TIMES_PER_S));
     // (the byte time of the last feed, the longest gap, feeds in the idle wait, after answers)
     let feeds = RefCell::new((0usize, 0usize, 0usize, 0usize));
     let feed = |idle: bool| {
