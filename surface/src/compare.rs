@@ -88,7 +88,7 @@ fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
 
 /// Compares two analyses of one subject (`before`, then `after`).
 pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
-    let pairs: [(&str, Index); 9] = [
+    let pairs: [(&str, Index); 10] = [
         ("rotation_max_deg", |a| {
             Some((a.rotation_max_deg, a.rotation_max_deg_sigma))
         }),
@@ -110,6 +110,9 @@ pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
         ("kyphosis_deg", |a| a.kyphosis_deg.zip(a.kyphosis_deg_sigma)),
         ("lordosis_deg", |a| a.lordosis_deg.zip(a.lordosis_deg_sigma)),
         ("atr_max_deg", |a| a.atr_max_deg.zip(a.atr_max_deg_sigma)),
+        ("asymmetry_max_mm", |a| {
+            a.asymmetry_max_mm.zip(a.asymmetry_max_mm_sigma)
+        }),
     ];
     let indices = pairs
         .iter()

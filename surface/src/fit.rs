@@ -58,6 +58,8 @@ struct Row {
     /// u_i = G_iᵀ jp_i.
     u: DVector<f64>,
     r: f64,
+    /// Where it lies on the surface, (a, v).
+    at: [f64; 2],
 }
 
 /// The fitted surface and poses, with what their covariance needs.
@@ -114,6 +116,7 @@ impl State<'_> {
             w: 1.0 / var,
             u: s.common.transpose() * jp,
             r: q.z - stencil.apply(&self.coeffs),
+            at: [q.x, q.y],
         })
     }
 
@@ -286,20 +289,12 @@ impl Fit {
         let k = grads.len();
         let z = self.normal.solve(&DMatrix::from_columns(grads));
 
-        let m = self.grid.len();
         let mut y = DMatrix::zeros(self.rows.len(), k);
         let mut u = DMatrix::zeros(self.common.nrows(), k);
         for (i, row) in self.rows.iter().enumerate() {
             let sw = row.w.sqrt();
             for q in 0..k {
-                let mut s = 0.0;
-                for (&c, &w) in row.stencil.index.iter().zip(&row.stencil.weight) {
-                    s -= w * z[(c, q)];
-                }
-                if row.frame > 0 {
-                    let o = m + 6 * (row.frame - 1);
-                    s += (0..6).map(|j| row.pose[j] * z[(o + j, q)]).sum::<f64>();
-                }
+                let s: f64 = self.jacobian(row).map(|(c, d)| d * z[(c, q)]).sum();
                 y[(i, q)] = sw * s;
                 for (j, uj) in row.u.iter().enumerate() {
                     u[(j, q)] += sw * uj * y[(i, q)];
@@ -319,6 +314,47 @@ impl Fit {
         (0..grads.len())
             .map(|q| y.column(q).norm_squared() + u.column(q).dot(&cu.column(q)))
             .collect()
+    }
+
+    /// The surface's misfit over the residuals that lie `inside` (a, v): the RMS (mm, across
+    /// the surface) of what they hold beyond the points' own noise, whose share of residual i
+    /// is (1 − h_i)/w_i by its leverage h_i = w_i j_iᵀ N⁻¹ j_i. Detail finer than the dots'
+    /// spacing: the surface passes through it, and what it leaves out of the fit is there.
+    pub fn misfit(&self, inside: impl Fn(f64, f64) -> bool) -> f64 {
+        let rows: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| inside(r.at[0], r.at[1]))
+            .collect();
+        if rows.is_empty() {
+            return 0.0;
+        }
+        let mut j = DMatrix::zeros(self.unknowns(), rows.len());
+        for (k, row) in rows.iter().enumerate() {
+            for (i, d) in self.jacobian(row) {
+                j[(i, k)] += d;
+            }
+        }
+        let z = self.normal.solve(&j);
+        let excess: f64 = rows
+            .iter()
+            .enumerate()
+            .map(|(k, row)| {
+                let h = row.w * j.column(k).dot(&z.column(k));
+                row.r * row.r - (1.0 - h).max(0.0) / row.w
+            })
+            .sum();
+        (excess / rows.len() as f64).max(0.0).sqrt()
+    }
+
+    /// A residual's derivatives over the unknowns (coefficients, then its frame's pose).
+    fn jacobian<'a>(&self, row: &'a Row) -> impl Iterator<Item = (usize, f64)> + 'a {
+        let pose = (row.frame > 0).then(|| self.grid.len() + 6 * (row.frame - 1));
+        let coefficients = row.stencil.index.iter().zip(&row.stencil.weight);
+        coefficients.map(|(&c, &w)| (c, -w)).chain(
+            pose.into_iter()
+                .flat_map(move |o| (0..6).map(move |j| (o + j, row.pose[j]))),
+        )
     }
 
     /// The normalised residuals' RMS: about 1 when the points' σ and the surface are right.

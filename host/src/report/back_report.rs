@@ -63,7 +63,8 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         html,
         "<p>Posture: {posture}; {} frame(s), {} points on the back, dot spacing {:.1} mm, \
          calibration {}. Points' covariance: {}. Surface fit χ {:.2} (about 1 when the points' \
-         σ hold).</p>",
+         σ hold); its misfit along the symmetry line {:.2} mm, detail between the dots, which \
+         the line's and the rotation's σ include.</p>",
         a.frames,
         a.points,
         a.spacing_mm,
@@ -74,7 +75,8 @@ pub fn report_html(report: &BackReport) -> Result<String> {
                 .unwrap_or("not named by the clouds")
         ),
         escape(&report.covariance),
-        a.fit_chi
+        a.fit_chi,
+        a.misfit_mm
     );
     html += "<h2>Measures</h2>\n<table><tr><th>measure</th><th>value ± σ</th></tr>\n";
     for (name, value, sigma, unit) in indices(a) {
@@ -222,6 +224,12 @@ pub fn indices(a: &BackAnalysis) -> Vec<(&'static str, f64, f64, &'static str)> 
             a.atr_max_deg,
             a.atr_max_deg_sigma,
             "°",
+        ),
+        (
+            "largest mirror asymmetry (depth to the mirrored surface)",
+            a.asymmetry_max_mm,
+            a.asymmetry_max_mm_sigma,
+            "mm",
         ),
     ];
     for (name, v, s, unit) in optional {

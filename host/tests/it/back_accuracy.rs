@@ -5,7 +5,7 @@
 //! second trunk of other proportions, four bent forward, and three swayed frames combined.
 //! Every σ is checked by the RMS of error/σ over the draws (0.8-1.25).
 
-use crate::back_sim::{check_line_and_rotation, scans, Bars, IndexErrors, ISSUE_BARS};
+use crate::back_sim::{check_line_and_rotation, scans, IndexErrors};
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_surface::Options;
 use nalgebra::Vector3;
@@ -28,24 +28,12 @@ fn report(what: &str, e: &IndexErrors) {
     );
 }
 
-/// The issue's bars for the symmetry line and the surface rotation; `line_z` bounds the
-/// symmetry line's RMS of error/σ from above (the issue's 1.25 on the default trunk; the
-/// lattice's sampling of a narrower spinous groove biases it by up to about 0.6 mm, which σ,
-/// propagated from the points, does not hold).
-fn check_with(what: &str, e: &IndexErrors, line_z: f64) {
-    report(what, e);
-    check_line_and_rotation(
-        what,
-        e,
-        Bars {
-            line_z,
-            ..ISSUE_BARS
-        },
-    );
-}
-
+/// The issue's bars for the symmetry line and the surface rotation (σ with its sampling
+/// terms: the lattice's sampling of the spinous groove and the paraspinal muscles moves the
+/// line by 0.2-0.5 mm RMS at 20 mm, deltaz-surface's `K_LINE`).
 fn check(what: &str, e: &IndexErrors) {
-    check_with(what, e, 1.25)
+    report(what, e);
+    check_line_and_rotation(what, e);
 }
 
 fn standing(deformity: Deformity, trunk: Trunk, seed: u64) -> IndexErrors {
@@ -119,13 +107,16 @@ fn severe_curve_standing() {
     );
 }
 
-/// On the second trunk's straight back the symmetry line's error/σ is 1.7 (0.99 mm RMS) and
-/// its largest |rotation| reaches 1.2°: the narrower paraspinal muscles are sampled too
-/// coarsely at 20 mm (reported, not asserted); its double curve meets the bars.
+/// The second trunk's double curve. Its straight back is not held: the paraspinal muscles,
+/// 14 mm wide, are sampled too coarsely at 20 mm, and the symmetry line's error/σ is 1.46
+/// (0.99 mm RMS; 1.7 without σ's sampling terms, whose misfit understates detail that narrow)
+/// with the largest |rotation| up to 1.16°.
 #[test]
 fn second_trunk_double_curve() {
-    let e = standing(Deformity::double(), second_trunk(), 7000);
-    check_with("second trunk, double", &e, 1.5);
+    check(
+        "second trunk, double",
+        &standing(Deformity::double(), second_trunk(), 7000),
+    );
 }
 
 /// Bent forward, the virtual scoliometer within 0.5° of the true surface's (per level and, on
@@ -188,7 +179,7 @@ fn swayed_frames_combine() {
         base.with_pose(sway([-0.5, 0.8, -0.6], [-2.5, 3.0, -3.0])),
     ];
     let e = scans(&models, SPACING, DRAWS, 12000, &Options::standing());
-    check_with("three swayed frames", &e, 1.5);
+    check("three swayed frames", &e);
     let one = standing(Deformity::thoracic(), Trunk::default(), 12000);
     assert!(e.rotation.rms() < one.rotation.rms() && e.symmetry_x.rms() < one.symmetry_x.rms());
 }

@@ -13,6 +13,7 @@ impl Measured<'_> {
         window: f64,
         skin_d: f64,
         spacing: f64,
+        misfit: f64,
     ) -> BackAnalysis {
         let n = levels.len();
         let (first, last) = (&levels[0], &levels[n - 1]);
@@ -21,23 +22,17 @@ impl Measured<'_> {
             .iter()
             .map(|l| {
                 let f = (l.v - first.v) / span;
-                Var {
-                    value: l.x.value - (1.0 - f) * first.x.value - f * last.x.value,
-                    gradient: &l.x.gradient - &first.x.gradient * (1.0 - f) - &last.x.gradient * f,
-                }
+                Var::sum(&[(&l.x, 1.0), (&first.x, f - 1.0), (&last.x, -f)])
             })
             .collect();
         let rotations: Vec<&Var> = levels.iter().map(|l| &l.rotation).collect();
         let deviations: Vec<&Var> = deviation.iter().collect();
-        let imbalance = Var {
-            value: last.x.value - first.x.value,
-            gradient: &last.x.gradient - &first.x.gradient,
-        };
+        let imbalance = Var::sum(&[(&last.x, 1.0), (&first.x, -1.0)]);
         let rise = last.depth.value - first.depth.value;
+        let c = span / (span * span + rise * rise);
         let inclination = Var {
             value: rise.atan2(span),
-            gradient: (&last.depth.gradient - &first.depth.gradient)
-                * (span / (span * span + rise * rise)),
+            ..Var::sum(&[(&last.depth, c), (&first.depth, -c)])
         };
         let (kyphosis, lordosis) = match self.posture {
             Posture::Standing => sagittal_angles(&levels),
@@ -50,8 +45,10 @@ impl Measured<'_> {
         let atr_max = (!atrs.is_empty()).then(|| largest(&atrs));
         // Every σ in one propagation: per level x, depth, rotation, sagittal, deviation, skin, atr.
         let mut grads: Vec<DVector<f64>> = Vec::new();
-        let mut slot = |g: &DVector<f64>| {
-            grads.push(g.clone());
+        let mut sampling: Vec<f64> = Vec::new();
+        let mut slot = |var: &Var| {
+            grads.push(var.gradient.clone());
+            sampling.push(var.sampling);
             grads.len() - 1
         };
         let per_level: Vec<[Option<usize>; 7]> = levels
@@ -59,13 +56,13 @@ impl Measured<'_> {
             .zip(&deviation)
             .map(|(l, d)| {
                 [
-                    Some(slot(&l.x.gradient)),
-                    Some(slot(&l.depth.gradient)),
-                    Some(slot(&l.rotation.gradient)),
-                    Some(slot(&l.sagittal.gradient)),
-                    Some(slot(&d.gradient)),
-                    l.skin.as_ref().map(|s| slot(&s.gradient)),
-                    l.atr.as_ref().map(|a| slot(&a.0.gradient)),
+                    Some(slot(&l.x)),
+                    Some(slot(&l.depth)),
+                    Some(slot(&l.rotation)),
+                    Some(slot(&l.sagittal)),
+                    Some(slot(d)),
+                    l.skin.as_ref().map(&mut slot),
+                    l.atr.as_ref().map(|a| slot(&a.0)),
                 ]
             })
             .collect();
@@ -84,15 +81,13 @@ impl Measured<'_> {
             lordosis.as_ref(),
             atr_max.as_ref(),
         ];
-        let scalar_slots: Vec<Option<usize>> = scalars
-            .iter()
-            .map(|s| s.map(|s| slot(&s.gradient)))
-            .collect();
+        let scalar_slots: Vec<Option<usize>> = scalars.iter().map(|s| s.map(&mut slot)).collect();
         let sigma: Vec<f64> = self
             .fit
             .variances(&grads)
             .iter()
-            .map(|v| v.max(0.0).sqrt())
+            .zip(&sampling)
+            .map(|(v, s)| (v + s * s).max(0.0).sqrt())
             .collect();
         let sd = |k: Option<usize>| k.map(|k| sigma[k]);
         let deg = f64::to_degrees;
@@ -121,6 +116,7 @@ impl Measured<'_> {
             .collect();
         let s = |i: usize| sd(scalar_slots[i]).unwrap_or(f64::NAN);
         let (asymmetry, topography) = self.maps(&levels);
+        let asymmetry_max = largest_inside(self, &asymmetry, &levels);
         BackAnalysis {
             posture: self.posture,
             frames: 1,
@@ -135,6 +131,7 @@ impl Measured<'_> {
             symmetry_window_mm: window,
             skin_angle_distance_mm: skin_d,
             fit_chi: self.fit.chi(),
+            misfit_mm: misfit,
             levels: out_levels,
             rotation_max_deg: deg(rot_max.value),
             rotation_max_deg_sigma: deg(s(0)),
@@ -154,6 +151,9 @@ impl Measured<'_> {
             lordosis_deg_sigma: sd(scalar_slots[7]).map(deg),
             atr_max_deg: atr_max.as_ref().map(|a| deg(a.value)),
             atr_max_deg_sigma: sd(scalar_slots[8]).map(deg),
+            asymmetry_max_mm: asymmetry_max.map(|m| m.0),
+            asymmetry_max_mm_sigma: asymmetry_max.map(|m| m.1),
+            asymmetry_max_at: asymmetry_max.map(|m| m.2),
             sway: vec![],
             asymmetry,
             topography,
@@ -178,6 +178,7 @@ impl Measured<'_> {
             .collect();
         let mut asym = Vec::new();
         let mut grads = Vec::new();
+        let mut sampling = Vec::new();
         let mut depth = Vec::new();
         for l in levels {
             for &x in &a {
@@ -191,6 +192,7 @@ impl Measured<'_> {
                         self.value(x, l.v, D::S) - self.value(mirror, l.v, D::S),
                     ));
                     grads.push(g);
+                    sampling.push(2.0 * self.value(mirror, l.v, D::A) * l.x.sampling);
                 } else {
                     asym.push(None);
                 }
@@ -200,7 +202,8 @@ impl Measured<'_> {
             .fit
             .variances(&grads)
             .into_iter()
-            .map(|v| v.max(0.0).sqrt());
+            .zip(sampling)
+            .map(|(v, s)| (v + s * s).max(0.0).sqrt());
         let sigmas = asym.iter().map(|x| x.and_then(|_| sigma.next())).collect();
         let v: Vec<f64> = levels.iter().map(|l| l.v).collect();
         let cells = depth.len();
@@ -221,29 +224,55 @@ impl Measured<'_> {
     }
 }
 
+/// The asymmetry map's value of largest magnitude (signed) with its σ and its cell (a, v),
+/// where the cell and its mirror image lie a grid step or more inside the measured surface
+/// (at its edges the fit ends).
+fn largest_inside(
+    measured: &Measured,
+    map: &Map,
+    levels: &[LevelVars],
+) -> Option<(f64, f64, [f64; 2])> {
+    let na = map.a.len();
+    let step = measured.fit.grid.step;
+    let cells = map.values.iter().zip(&map.sigmas).enumerate();
+    cells
+        .filter(|(k, _)| {
+            let (a, l) = (map.a[k % na], &levels[k / na]);
+            let mirror = 2.0 * l.x.value - a;
+            measured
+                .support
+                .covers(a.min(mirror) - step, a.max(mirror) + step, l.v)
+        })
+        .filter_map(|(k, (v, s))| Some((v.as_ref()?, s.as_ref()?, k)))
+        .max_by(|p, q| p.0.abs().total_cmp(&q.0.abs()))
+        .map(|(v, s, k)| (*v, *s, [map.a[k % na], levels[k / na].v]))
+}
+
 /// The value of largest magnitude (signed) with its gradient.
 fn largest(vars: &[&Var]) -> Var {
     let best = vars
         .iter()
         .max_by(|p, q| p.value.abs().total_cmp(&q.value.abs()))
         .expect("at least one level");
-    Var {
-        value: best.value,
-        gradient: best.gradient.clone(),
-    }
+    (*best).clone()
 }
 
 /// The RMS with its gradient.
 fn rms(vars: &[&Var]) -> Var {
     let n = vars.len() as f64;
     let value = (vars.iter().map(|v| v.value * v.value).sum::<f64>() / n).sqrt();
-    let mut gradient = vars[0].gradient.clone() * 0.0;
-    if value > 0.0 {
-        for v in vars {
-            gradient += &v.gradient * (v.value / (n * value));
-        }
+    if value == 0.0 {
+        return Var {
+            value,
+            gradient: vars[0].gradient.clone() * 0.0,
+            sampling: 0.0,
+        };
     }
-    Var { value, gradient }
+    let terms: Vec<(&Var, f64)> = vars.iter().map(|v| (*v, v.value / (n * value))).collect();
+    Var {
+        value,
+        ..Var::sum(&terms)
+    }
 }
 
 /// Kyphosis and lordosis from the sagittal slopes (module docs).
@@ -255,10 +284,7 @@ fn sagittal_angles(levels: &[LevelVars]) -> (Option<Var>, Option<Var>) {
     let least =
         |range: std::ops::Range<usize>| range.min_by(|&i, &j| slope(i).total_cmp(&slope(j)));
     let angle = |other: Option<usize>| {
-        other.map(|o| Var {
-            value: slope(itl) - slope(o),
-            gradient: &levels[itl].sagittal.gradient - &levels[o].sagittal.gradient,
-        })
+        other.map(|o| Var::sum(&[(&levels[itl].sagittal, 1.0), (&levels[o].sagittal, -1.0)]))
     };
     // Levels run bottom to top: the cervico-thoracic inflection is above the thoraco-lumbar.
     (angle(least(itl + 1..levels.len())), angle(least(0..itl)))

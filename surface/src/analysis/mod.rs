@@ -194,7 +194,11 @@ pub struct BackAnalysis {
     pub skin_angle_distance_mm: f64,
     /// The normalised residuals' RMS of the surface fit (about 1 when the points' σ hold).
     pub fit_chi: f64,
-    /// The symmetry line, level by level (bottom to top).
+    /// The surface's misfit along the symmetry line ([`crate::fit::Fit::misfit`] within the
+    /// symmetry window): detail between the dots, which the sampling terms of the symmetry
+    /// line's and the rotation's σ scale with.
+    pub misfit_mm: f64,
+    /// The symmetry line, level by level, level by level (bottom to top).
     pub levels: Vec<Level>,
     /// The largest surface rotation (the signed value of largest magnitude).
     pub rotation_max_deg: f64,
@@ -232,6 +236,15 @@ pub struct BackAnalysis {
     pub atr_max_deg: Option<f64>,
     /// Its σ.
     pub atr_max_deg_sigma: Option<f64>,
+    /// The asymmetry map's value of largest magnitude (signed), where it and its mirror image
+    /// lie a grid step or more inside the measured surface (None when no cell does). Its σ is
+    /// its cell's: the largest of many cells leans away from zero with their noise (by 1-3 σ
+    /// where the map is nearly flat).
+    pub asymmetry_max_mm: Option<f64>,
+    /// Its σ.
+    pub asymmetry_max_mm_sigma: Option<f64>,
+    /// Where it is, (a, v) in [`Axes`].
+    pub asymmetry_max_at: Option<[f64; 2]>,
     /// Each later frame's sway relative to the first.
     pub sway: Vec<Sway>,
     /// The depth difference to the surface mirrored about the symmetry line, s(a) − s(2x − a).
