@@ -18,6 +18,8 @@ use crate::spline::{Grid, Stencil, D};
 use crate::SurfaceError;
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
 use nalgebra_sparse::factorization::CscCholesky;
+use nalgebra_sparse::ops::serial::spsolve_csc_lower_triangular;
+use nalgebra_sparse::ops::Op;
 use nalgebra_sparse::{CooMatrix, CscMatrix};
 
 /// A point in the analysis axes with its covariance and its common-share sensitivity.
@@ -316,6 +318,16 @@ impl Fit {
             .collect()
     }
 
+    /// The σ of the quantities whose gradients are `grads`, each with an independent term
+    /// (σ) of its own in `sampling` added in quadrature.
+    pub fn sigmas(&self, grads: &[DVector<f64>], sampling: &[f64]) -> Vec<f64> {
+        self.variances(grads)
+            .iter()
+            .zip(sampling)
+            .map(|(v, s)| (v + s * s).max(0.0).sqrt())
+            .collect()
+    }
+
     /// The surface's misfit over the residuals that lie `inside` (a, v): the RMS (mm, across
     /// the surface) of what they hold beyond the points' own noise, whose share of residual i
     /// is (1 − h_i)/w_i by its leverage h_i = w_i j_iᵀ N⁻¹ j_i. Detail finer than the dots'
@@ -335,12 +347,14 @@ impl Fit {
                 j[(i, k)] += d;
             }
         }
-        let z = self.normal.solve(&j);
+        // j N⁻¹ j = |L⁻¹ j|² (N = L Lᵀ): half a solve.
+        spsolve_csc_lower_triangular(Op::NoOp(self.normal.l()), &mut j)
+            .expect("the factor is square and lower triangular with a nonzero diagonal");
         let excess: f64 = rows
             .iter()
             .enumerate()
             .map(|(k, row)| {
-                let h = row.w * j.column(k).dot(&z.column(k));
+                let h = row.w * j.column(k).norm_squared();
                 row.r * row.r - (1.0 - h).max(0.0) / row.w
             })
             .sum();

@@ -82,13 +82,7 @@ impl Measured<'_> {
             atr_max.as_ref(),
         ];
         let scalar_slots: Vec<Option<usize>> = scalars.iter().map(|s| s.map(&mut slot)).collect();
-        let sigma: Vec<f64> = self
-            .fit
-            .variances(&grads)
-            .iter()
-            .zip(&sampling)
-            .map(|(v, s)| (v + s * s).max(0.0).sqrt())
-            .collect();
+        let sigma = self.fit.sigmas(&grads, &sampling);
         let sd = |k: Option<usize>| k.map(|k| sigma[k]);
         let deg = f64::to_degrees;
         let out_levels = levels
@@ -116,7 +110,7 @@ impl Measured<'_> {
             .collect();
         let s = |i: usize| sd(scalar_slots[i]).unwrap_or(f64::NAN);
         let (asymmetry, topography) = self.maps(&levels);
-        let asymmetry_max = largest_inside(self, &asymmetry, &levels);
+        let asymmetry_max = self.largest_inside(&asymmetry, &levels);
         BackAnalysis {
             posture: self.posture,
             frames: 1,
@@ -198,12 +192,7 @@ impl Measured<'_> {
                 }
             }
         }
-        let mut sigma = self
-            .fit
-            .variances(&grads)
-            .into_iter()
-            .zip(sampling)
-            .map(|(v, s)| (v + s * s).max(0.0).sqrt());
+        let mut sigma = self.fit.sigmas(&grads, &sampling).into_iter();
         let sigmas = asym.iter().map(|x| x.and_then(|_| sigma.next())).collect();
         let v: Vec<f64> = levels.iter().map(|l| l.v).collect();
         let cells = depth.len();
@@ -222,30 +211,25 @@ impl Measured<'_> {
             },
         )
     }
-}
 
-/// The asymmetry map's value of largest magnitude (signed) with its σ and its cell (a, v),
-/// where the cell and its mirror image lie a grid step or more inside the measured surface
-/// (at its edges the fit ends).
-fn largest_inside(
-    measured: &Measured,
-    map: &Map,
-    levels: &[LevelVars],
-) -> Option<(f64, f64, [f64; 2])> {
-    let na = map.a.len();
-    let step = measured.fit.grid.step;
-    let cells = map.values.iter().zip(&map.sigmas).enumerate();
-    cells
-        .filter(|(k, _)| {
-            let (a, l) = (map.a[k % na], &levels[k / na]);
-            let mirror = 2.0 * l.x.value - a;
-            measured
-                .support
-                .covers(a.min(mirror) - step, a.max(mirror) + step, l.v)
-        })
-        .filter_map(|(k, (v, s))| Some((v.as_ref()?, s.as_ref()?, k)))
-        .max_by(|p, q| p.0.abs().total_cmp(&q.0.abs()))
-        .map(|(v, s, k)| (*v, *s, [map.a[k % na], levels[k / na].v]))
+    /// The asymmetry map's value of largest magnitude (signed) with its σ and its cell (a, v),
+    /// where the cell and its mirror image lie a grid step or more inside the measured surface
+    /// (at its edges the fit ends).
+    fn largest_inside(&self, map: &Map, levels: &[LevelVars]) -> Option<(f64, f64, [f64; 2])> {
+        let na = map.a.len();
+        let step = self.fit.grid.step;
+        let cells = map.values.iter().zip(&map.sigmas).enumerate();
+        cells
+            .filter(|(k, _)| {
+                let (a, l) = (map.a[k % na], &levels[k / na]);
+                let mirror = 2.0 * l.x.value - a;
+                self.support
+                    .covers(a.min(mirror) - step, a.max(mirror) + step, l.v)
+            })
+            .filter_map(|(k, (v, s))| Some((v.as_ref()?, s.as_ref()?, k)))
+            .max_by(|p, q| p.0.abs().total_cmp(&q.0.abs()))
+            .map(|(v, s, k)| (*v, *s, [map.a[k % na], levels[k / na].v]))
+    }
 }
 
 /// The value of largest magnitude (signed) with its gradient.
