@@ -413,6 +413,8 @@ impl Labelling {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
 
     /// Two squares and an L joined diagonally: three components, the L's diagonal neighbour
     /// merged by 8-connectivity, gravity centres exact.
@@ -461,16 +463,9 @@ mod tests {
     #[test]
     fn run_labels_match_flood_fill() {
         let (w, h) = (41, 2 * BAND_ROWS + 11);
-        let mut state = 12345u32;
+        let mut rng = StdRng::seed_from_u64(12345);
         let px: Vec<u8> = (0..w * h)
-            .map(|_| {
-                state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
-                if (state >> 16) % 100 < 30 {
-                    9
-                } else {
-                    0
-                }
-            })
+            .map(|_| if rng.random_bool(0.3) { 9 } else { 0 })
             .collect();
         let img = GrayView {
             width: w,

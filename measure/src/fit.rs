@@ -455,6 +455,8 @@ pub fn fit_template<P: Copy + Into<f64>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
 
     /// The analytic gradient of the template agrees with central differences (of the f32
     /// template: steps of 2·10⁻³ keep its rounding, about 10⁻⁵ of the value, near 10⁻³).
@@ -492,12 +494,11 @@ mod tests {
             }
             let truth = [0.3, -0.2, 0.05, 0.01, 0.08, 150.0, 1.1, 40.0, 0.1, -0.2];
             let mut s = Scratch::default();
-            let mut state = 1u32;
+            let mut rng = StdRng::seed_from_u64(1);
             for r in -7..=7 {
                 for c in -8..=8 {
                     let (x, y) = (c as f32, r as f32);
-                    state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
-                    let noise = ((state >> 16) % 1000) as f32 / 250.0 - 2.0;
+                    let noise = rng.random_range(-2.0..2.0);
                     s.push(x, y, model(&truth, x, y).0 + noise, 1.0);
                 }
             }

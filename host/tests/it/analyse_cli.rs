@@ -2,6 +2,7 @@
 //! dots 20 mm apart, σ 0.4 mm, written as deltaz clouds with their σ) into analysis.json and
 //! report.html, the follow-up of two analyses, and the clouds it refuses.
 
+use crate::cli::deltaz_in;
 use deltaz_calib::reconstruct::ReconstructedPoint;
 use deltaz_host::io::ply::{encode_with, CloudInfo, Encoding};
 use deltaz_host::simulate::back::{BackModel, Deformity, Lattice, Pose};
@@ -9,15 +10,7 @@ use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn deltaz(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .expect("run deltaz")
-}
+use std::process::Output;
 
 const SIGMA: f64 = 0.4;
 
@@ -71,7 +64,7 @@ fn analyse_back_writes_its_report_and_compares() {
     });
     write_cloud(&d.join("f0.ply"), &model, "the camera system", 1);
     write_cloud(&d.join("f1.ply"), &swayed, "the camera system", 2);
-    let analysed = json(&deltaz(
+    let analysed = json(&deltaz_in(
         d,
         &[
             "analyse", "back", "--cloud", "f0.ply", "--cloud", "f1.ply", "--out", "a", "--json",
@@ -126,13 +119,13 @@ fn analyse_back_writes_its_report_and_compares() {
 
     // The same back again: no change exceeds the noise but by chance (5 % per value).
     write_cloud(&d.join("g0.ply"), &model, "the camera system", 3);
-    json(&deltaz(
+    json(&deltaz_in(
         d,
         &[
             "analyse", "back", "--cloud", "g0.ply", "--out", "b", "--json",
         ],
     ));
-    let c = json(&deltaz(
+    let c = json(&deltaz_in(
         d,
         &[
             "analyse",
@@ -159,13 +152,13 @@ fn analyse_back_writes_its_report_and_compares() {
         "the camera system",
         4,
     );
-    json(&deltaz(
+    json(&deltaz_in(
         d,
         &[
             "analyse", "back", "--cloud", "h0.ply", "--out", "h", "--json",
         ],
     ));
-    let c = json(&deltaz(
+    let c = json(&deltaz_in(
         d,
         &[
             "analyse",
@@ -224,7 +217,7 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         for c in clouds {
             args.extend(["--cloud", c]);
         }
-        let out = deltaz(d, &args);
+        let out = deltaz_in(d, &args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
             !out.status.success() && err.contains(expect),

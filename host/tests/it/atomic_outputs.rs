@@ -3,17 +3,10 @@
 //! device node or a fifo is refused before anything is written, never replaced; an interrupted
 //! command (SIGINT) leaves no temporary file behind.
 
+use crate::cli::deltaz_in;
 use deltaz_host::workflows::bench_reconstruct::ScalingInputs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn deltaz(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
+use std::process::Command;
 
 /// The files in `dir` whose names hold `.tmp` (the temporaries of `io::atomic`).
 fn temporaries(dir: &Path) -> Vec<PathBuf> {
@@ -44,7 +37,7 @@ fn outputs_write_through_symbolic_links() {
     std::fs::write(d.join("real/old.ply"), "old").unwrap();
     symlink("real/old.ply", d.join("cloud.ply")).unwrap();
     symlink("real/new.csv", d.join("cloud.csv")).unwrap();
-    let out = deltaz(
+    let out = deltaz_in(
         d,
         &[
             "reconstruct",
@@ -78,7 +71,7 @@ fn outputs_write_through_symbolic_links() {
     assert!(temporaries(d).is_empty() && temporaries(&d.join("real")).is_empty());
     // Staged outputs (several files renamed together) follow links too.
     symlink("real/camera.yml", d.join("camera.yml")).unwrap();
-    let out = deltaz(
+    let out = deltaz_in(
         d,
         &[
             "export",
@@ -151,7 +144,7 @@ fn device_nodes_and_fifos_are_refused_not_replaced() {
                 target,
             ],
         ] {
-            let out = deltaz(d, &args);
+            let out = deltaz_in(d, &args);
             let stderr = String::from_utf8_lossy(&out.stderr);
             assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
             assert!(stderr.contains(expect), "{args:?}: {stderr}");

@@ -6,25 +6,15 @@
 //! sequential path is honest only if camera.json carries the camera's covariance and the
 //! projector calibration takes it, with the plate poses, into its σ.
 
+use crate::cli::deltaz_ok;
 use deltaz_host::io::observations::write_observations;
 use deltaz_host::simulate::{simulate, write_simulation, Scenario, Simulation};
 use nalgebra::Vector3;
 use std::path::Path;
-use std::process::Command;
 
 /// Runs `deltaz ARGS --quiet` in `dir`; panics with its stderr when it fails.
 fn deltaz(dir: &Path, args: &[&str]) {
-    let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .arg("--quiet")
-        .current_dir(dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    deltaz_ok(dir, &[args, &["--quiet"]].concat());
 }
 
 /// Where the true ray `id` meets the plate of image `image` (camera system, mm).

@@ -1,15 +1,8 @@
 //! End to end through the `deltaz` binary: simulate the paper rig, calibrate the camera, resect
 //! the plate images with the result.
 
+use crate::cli::deltaz;
 use std::path::Path;
-use std::process::Command;
-
-fn deltaz(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .output()
-        .expect("run deltaz")
-}
 
 fn path(dir: &Path, name: &str) -> String {
     dir.join(name).to_string_lossy().into_owned()

@@ -1,18 +1,10 @@
 //! `deltaz device ...` through the binary: the in-process device, clear errors, and a stream whose
 //! points agree with `deltaz reconstruct` on the same system.
 
+use crate::cli::deltaz;
 use deltaz_shared::protocol::PROTOCOL_VERSION;
 use std::collections::HashMap;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn deltaz(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .env("RUST_BACKTRACE", "0")
-        .output()
-        .expect("run deltaz")
-}
 
 fn ok(args: &[&str]) -> String {
     let out = deltaz(args);

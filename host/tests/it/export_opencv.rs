@@ -3,28 +3,13 @@
 //! (Rodrigues, then k1, k2, p1, p2, k3, then the camera matrix), reproduces deltaz's projection of
 //! every observed control point, so the residuals too, within the refit error the file reports.
 
+use crate::cli::{deltaz_ok, words};
 use deltaz_host::io::camera_file::read_camera;
 use deltaz_host::io::control::read_control;
 use deltaz_host::io::observations::{image_labels, read_observations};
 use deltaz_host::simulate::{simulate, write_simulation, Scenario};
 use deltaz_shared::collinearity::Camera;
 use nalgebra::{Matrix3, Vector3};
-use std::path::Path;
-use std::process::Command;
-
-fn deltaz(dir: &Path, command: &str) {
-    let args: Vec<&str> = command.split_whitespace().collect();
-    let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(&args)
-        .current_dir(dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
 
 /// The numbers after `key:` (a scalar) or in the `data: [...]` of the `key: !!opencv-matrix`.
 fn yaml_numbers(text: &str, key: &str) -> Vec<f64> {
@@ -73,11 +58,11 @@ fn check(scenario: &Scenario, largest_refit_px: f64) {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     write_simulation(d, &simulate(scenario, 4)).unwrap();
-    deltaz(
+    deltaz_ok(d, &words("calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json --k2"));
+    deltaz_ok(
         d,
-        "calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json --k2",
+        &words("export opencv --camera camera.json --out camera.yml"),
     );
-    deltaz(d, "export opencv --camera camera.json --out camera.yml");
     let yaml = std::fs::read_to_string(d.join("camera.yml")).unwrap();
     assert!(yaml.starts_with("%YAML:1.0\n---\n"));
     let camera = read_camera(&d.join("camera.json")).unwrap();
@@ -149,15 +134,12 @@ fn from_a_system_file() {
     let mut scenario = Scenario::paper();
     scenario.noise.image_sigma_px = 0.1;
     write_simulation(d, &simulate(&scenario, 2)).unwrap();
-    deltaz(
+    deltaz_ok(d, &words("calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json"));
+    deltaz_ok(d, &words("calibrate projector --camera camera.json --control plate_control.csv --obs plate_obs.csv --out system.json --model paper"));
+    deltaz_ok(
         d,
-        "calibrate camera --init camera_init.json --obs camera_obs.csv --control camera_control.csv --out camera.json",
+        &words("export opencv --system system.json --out system.yml"),
     );
-    deltaz(
-        d,
-        "calibrate projector --camera camera.json --control plate_control.csv --obs plate_obs.csv --out system.json --model paper",
-    );
-    deltaz(d, "export opencv --system system.json --out system.yml");
     let yaml = std::fs::read_to_string(d.join("system.yml")).unwrap();
     assert!(yaml.contains("image_names: [ \"rig\" ]"), "{yaml}");
     let extrinsic = yaml_numbers(&yaml, "extrinsic_parameters");

@@ -4,18 +4,11 @@
 //! header, the CSV's first line, the message and `--json` of `reconstruct` say which, and a frame
 //! the system cannot give is refused.
 
+use crate::cli::deltaz_in;
 use deltaz_host::io::system_file::{SystemFile, SystemFrame};
 use deltaz_host::simulate::{simulate, write_simulation, Scenario};
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn deltaz(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .expect("run deltaz")
-}
+use std::process::Output;
 
 fn ok(out: Output) -> String {
     assert!(
@@ -42,7 +35,7 @@ fn reconstruct(dir: &Path, system: &str, extra: &[&str]) -> (serde_json::Value, 
         "--json",
     ];
     args.extend_from_slice(extra);
-    let json: serde_json::Value = serde_json::from_str(&ok(deltaz(dir, &args))).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&ok(deltaz_in(dir, &args))).unwrap();
     let ply = std::fs::read(dir.join("cloud.ply")).unwrap();
     let end = ply.windows(10).position(|w| w == b"end_header").unwrap();
     let header = String::from_utf8_lossy(&ply[..end]).into_owned();
@@ -72,7 +65,7 @@ fn every_output_states_the_systems_frame() {
         "--out",
         "camera.json",
     ];
-    ok(deltaz(d, &camera));
+    ok(deltaz_in(d, &camera));
     let projector = [
         "calibrate",
         "projector",
@@ -87,7 +80,7 @@ fn every_output_states_the_systems_frame() {
         "--model",
         "paper",
     ];
-    let text = ok(deltaz(d, &projector));
+    let text = ok(deltaz_in(d, &projector));
     assert!(text.contains("in the plate frame of image p1"), "{text}");
     let (file, _) = SystemFile::load(&d.join("projector.json")).unwrap();
     let p1 = SystemFrame::Plate { image: "p1".into() };
@@ -104,7 +97,7 @@ fn every_output_states_the_systems_frame() {
     );
     // Its points cannot be had in the camera system: refused, nothing written.
     std::fs::remove_file(d.join("cloud.ply")).unwrap();
-    let refused = deltaz(
+    let refused = deltaz_in(
         d,
         &[
             "reconstruct",
@@ -129,7 +122,7 @@ fn every_output_states_the_systems_frame() {
 
     // The joint model (the default) calibrates in the camera system.
     let joint = &projector[..projector.len() - 2];
-    let text = ok(deltaz(d, joint));
+    let text = ok(deltaz_in(d, joint));
     assert!(text.contains("in the camera system"), "{text}");
     let (json, ply, _) = reconstruct(d, "projector.json", &[]);
     assert_eq!(
@@ -154,7 +147,7 @@ fn every_output_states_the_systems_frame() {
         "system.json",
         "--json",
     ];
-    let json: serde_json::Value = serde_json::from_str(&ok(deltaz(d, &system))).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&ok(deltaz_in(d, &system))).unwrap();
     assert_eq!(json["frame"], "the camera system");
     let (file, _) = SystemFile::load(&d.join("system.json")).unwrap();
     assert_eq!(file.content.frame, SystemFrame::Camera);

@@ -2,17 +2,9 @@
 //! `deltaz simulate --images`: no observation file given by hand; the measured observations
 //! are written next to the outputs. A folder without images is an error and writes nothing.
 
+use crate::cli::deltaz_in;
 use deltaz_host::io::observations::{read_observations, PointKind};
-use std::path::Path;
-use std::process::{Command, Output};
-
-fn deltaz(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
+use std::process::Output;
 
 /// The status lines (stderr) of a successful run.
 fn ok(out: &Output) -> String {
@@ -25,11 +17,12 @@ fn ok(out: &Output) -> String {
 fn calibrations_from_image_folders() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&deltaz(
-        &["simulate", "--scenario", "paper", "--out", ".", "--images"],
+    ok(&deltaz_in(
         d,
+        &["simulate", "--scenario", "paper", "--out", ".", "--images"],
     ));
-    let run = deltaz(
+    let run = deltaz_in(
+        d,
         &[
             "calibrate",
             "camera",
@@ -45,7 +38,6 @@ fn calibrations_from_image_folders() {
             "camera.json",
             "--json",
         ],
-        d,
     );
     let camera = ok(&run);
     // One status line per image on stderr; stdout holds the result alone, one JSON object.
@@ -59,7 +51,8 @@ fn calibrations_from_image_folders() {
     assert!(field.len() >= 380, "{}", field.len());
     assert!(field.iter().all(|o| o.point.starts_with('T')));
 
-    let projector = ok(&deltaz(
+    let projector = ok(&deltaz_in(
+        d,
         &[
             "calibrate",
             "projector",
@@ -74,7 +67,6 @@ fn calibrations_from_image_folders() {
             "--out",
             "system.json",
         ],
-        d,
     ));
     println!("{projector}");
     let plate = read_observations(&d.join("system.obs.csv")).unwrap();
@@ -86,7 +78,8 @@ fn calibrations_from_image_folders() {
 
     // An empty folder: an error naming it, nothing written.
     std::fs::create_dir(d.join("empty")).unwrap();
-    let out = deltaz(
+    let out = deltaz_in(
+        d,
         &[
             "calibrate",
             "camera",
@@ -99,7 +92,6 @@ fn calibrations_from_image_folders() {
             "--out",
             "again.json",
         ],
-        d,
     );
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);

@@ -2,21 +2,16 @@
 //! quiet; the PLY of `reconstruct` read back by `compare`, its header naming units, frame and
 //! the calibration's fingerprint, a `frame` property (the image's index) that tells merged images apart.
 
+use crate::cli::{deltaz_in, words};
 use deltaz_host::io::camera_file::{write_camera, CameraFile};
 use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
 use serde_json::Value;
 use std::path::Path;
-use std::process::Command;
 
 /// Runs `deltaz ARGS --json --quiet` in `dir`: its JSON, after checking stderr is empty.
 fn json(dir: &Path, command: &str) -> Value {
-    let args: Vec<&str> = command.split_whitespace().collect();
-    let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(&args)
-        .args(["--json", "--quiet"])
-        .current_dir(dir)
-        .output()
-        .unwrap();
+    let args = words(command);
+    let out = deltaz_in(dir, &[&args[..], &["--json", "--quiet"]].concat());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.success() && stderr.is_empty(),

@@ -12,6 +12,7 @@ mod bad_input;
 mod board_calibration_opencv;
 mod board_geometry;
 mod calibration_paths;
+mod cli;
 mod cli_calibration;
 mod compare_cli;
 mod demo;

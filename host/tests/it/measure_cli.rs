@@ -1,15 +1,8 @@
 //! The command line: `deltaz simulate --images`, then `deltaz measure` on the rendered images;
 //! a bad image fails with its name and the problem, and writes nothing.
 
+use crate::cli::deltaz;
 use deltaz_host::io::observations::read_observations;
-use std::process::Command;
-
-fn deltaz(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .output()
-        .expect("run deltaz")
-}
 
 #[test]
 fn simulate_images_then_measure() {

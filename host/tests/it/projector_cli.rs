@@ -2,18 +2,11 @@
 //! input: rays seen on one plane, coplanar plate control, an unknown ray, an edited system.json.
 //! Nothing is written when they fail.
 
+use crate::cli::deltaz_in;
 use deltaz_host::io::camera_file::{write_camera, CameraFile};
 use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn deltaz(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
+use std::process::Output;
 
 /// A simulated paper rig at 0.1 px with the true camera as camera.json.
 fn setup(dir: &Path) {
@@ -47,7 +40,7 @@ fn calibrate_with(dir: &Path, control: &str, obs: &str, model: &str, extra: &[&s
         "0.1",
     ];
     args.extend_from_slice(extra);
-    deltaz(&args, dir)
+    deltaz_in(dir, &args)
 }
 
 fn stderr(o: &Output) -> String {
@@ -86,7 +79,8 @@ fn calibrate_then_reconstruct() {
         dots.push('\n');
     }
     std::fs::write(d.join("dots.csv"), dots).unwrap();
-    let out = deltaz(
+    let out = deltaz_in(
+        d,
         &[
             "reconstruct",
             "--system",
@@ -101,7 +95,6 @@ fn calibrate_then_reconstruct() {
             "0.1",
             "--ascii",
         ],
-        d,
     );
     assert!(out.status.success(), "{}", stderr(&out));
     let csv = std::fs::read_to_string(d.join("cloud.csv")).unwrap();
@@ -177,7 +170,8 @@ fn bad_input_is_named_and_nothing_is_written() {
         "image,point,col,row\nf1,305,300,200\nf1,2121,310,210\n",
     )
     .unwrap();
-    let out = deltaz(
+    let out = deltaz_in(
+        d,
         &[
             "reconstruct",
             "--system",
@@ -187,7 +181,6 @@ fn bad_input_is_named_and_nothing_is_written() {
             "--out",
             "u.ply",
         ],
-        d,
     );
     assert!(!out.status.success());
     assert!(
@@ -205,7 +198,8 @@ fn bad_input_is_named_and_nothing_is_written() {
         serde_json::to_string(&system).unwrap(),
     )
     .unwrap();
-    let out = deltaz(
+    let out = deltaz_in(
+        d,
         &[
             "reconstruct",
             "--system",
@@ -215,7 +209,6 @@ fn bad_input_is_named_and_nothing_is_written() {
             "--out",
             "u.ply",
         ],
-        d,
     );
     assert!(!out.status.success());
     assert!(
@@ -276,7 +269,7 @@ fn reconstruct_streams_across_batches() {
         "--csv",
         "many.csv.out",
     ];
-    let out = deltaz(&args, d);
+    let out = deltaz_in(d, &args);
     assert!(out.status.success(), "{}", stderr(&out));
     let ply = std::fs::read(d.join("many.ply")).unwrap();
     let head = b"element vertex 70000\n";
@@ -313,7 +306,7 @@ fn reconstruct_streams_across_batches() {
     bad[66_001] = format!("f150,{},x,200,dot", plate[0].0);
     let bad = bad.join("\n");
     std::fs::write(d.join("many.csv"), bad).unwrap();
-    let out = deltaz(&args, d);
+    let out = deltaz_in(d, &args);
     assert!(!out.status.success());
     assert!(
         stderr(&out).contains("many.csv:66002: `col` is not a number"),
@@ -326,7 +319,8 @@ fn reconstruct_streams_across_batches() {
         "image,point,col,row\nf1,305,300,200\nf1,306,768.2,10\n",
     )
     .unwrap();
-    let off = deltaz(
+    let off = deltaz_in(
+        d,
         &[
             "reconstruct",
             "--system",
@@ -336,7 +330,6 @@ fn reconstruct_streams_across_batches() {
             "--out",
             "off.ply",
         ],
-        d,
     );
     assert!(
         stderr(&off).contains("off.csv:3: (768.2, 10) is off the 768 × 512 sensor"),

@@ -3,18 +3,9 @@
 //! (IMAGE..., A.csv, MM, alternatives a|b) runs, in order, in one directory, with its optional
 //! `[...]` parts left out.
 
-use std::path::Path;
-use std::process::Command;
+use crate::cli::deltaz_in;
 
 const README: &str = include_str!("../../../README.md");
-
-fn deltaz(dir: &Path, args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaz"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
 
 /// The line without `# comment` and, with `optional` false, without its `[...]` parts.
 fn words(line: &str, optional: bool) -> Vec<String> {
@@ -62,7 +53,7 @@ fn readme_examples_agree_with_help_and_run() {
             .collect();
         let mut help_args = path.clone();
         help_args.push("--help");
-        let help = deltaz(dir.path(), &help_args);
+        let help = deltaz_in(dir.path(), &help_args);
         let help = String::from_utf8_lossy(&help.stdout);
         for flag in all.iter().filter(|w| w.starts_with("--")) {
             let flag = flag.split('=').next().unwrap();
@@ -79,7 +70,7 @@ fn readme_examples_agree_with_help_and_run() {
             continue;
         }
         let args: Vec<&str> = run.iter().map(String::as_str).collect();
-        let out = deltaz(dir.path(), &args);
+        let out = deltaz_in(dir.path(), &args);
         assert!(
             out.status.success(),
             "README: {line}\n{}",

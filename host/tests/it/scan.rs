@@ -3,6 +3,7 @@
 //! propagated from the measured image noise, and the command's files. The helpers here scan
 //! the other test objects too ([`crate::objects`]).
 
+use crate::cli::deltaz_in;
 use deltaz_calib::projector_calibration::DotObservation;
 use deltaz_calib::reconstruct::covariance;
 use deltaz_calib::system_adjustment::{Frame, PointShares, SystemModel};
@@ -224,13 +225,7 @@ fn scan_command_files() {
     write_simulation(d, &simulate(&scenario, 2)).unwrap();
     let (grid, inner) = true_camera(&scenario);
     write_camera(&d.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
-    let deltaz = |args: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_deltaz"))
-            .args(args)
-            .current_dir(d)
-            .output()
-            .unwrap()
-    };
+    let deltaz = |args: &[&str]| deltaz_in(d, args);
     let args = [
         "calibrate",
         "projector",

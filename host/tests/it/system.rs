@@ -346,18 +346,11 @@ fn plate_frame_sigma_includes_the_transform() {
 }
 
 mod cli {
+    use crate::cli::deltaz_in;
     use deltaz_host::io::system_file::SystemFile;
     use deltaz_host::simulate::{simulate, write_simulation, Scenario};
     use std::path::Path;
-    use std::process::{Command, Output};
-
-    fn deltaz(args: &[&str], dir: &Path) -> Output {
-        Command::new(env!("CARGO_BIN_EXE_deltaz"))
-            .args(args)
-            .current_dir(dir)
-            .output()
-            .unwrap()
-    }
+    use std::process::Output;
 
     fn calibrate_system(dir: &Path, extra: &[&str]) -> Output {
         let mut args = vec![
@@ -377,7 +370,7 @@ mod cli {
             "system.json",
         ];
         args.extend_from_slice(extra);
-        deltaz(&args, dir)
+        deltaz_in(dir, &args)
     }
 
     /// `calibrate system` on the desk rig's files, field and plate images in one adjustment: the
@@ -440,7 +433,7 @@ mod cli {
                 &csv,
             ];
             args.extend_from_slice(extra);
-            let rec = deltaz(&args, d);
+            let rec = deltaz_in(d, &args);
             assert!(
                 rec.status.success(),
                 "{}",
