@@ -1,57 +1,103 @@
 //! The real scoliotic backs (ten patients, upright and bent forward; see
 //! `back_real_data`), thinned to 15 mm as a dot pattern would see them: every scan analysed,
 //! the largest surface rotation (upright) and the virtual scoliometer (bent forward) against
-//! the radiographic Cobb angle. Without the data folder it skips visibly
-//! ([`deltaz_testkit::require`]).
+//! the radiographic Cobb angle, on the aligned lattice and wherever else it may fall. Without
+//! the data folder it skips visibly ([`deltaz_testkit::require`]).
 
-use crate::back_real_data::{cobb_angles, correlation, folder, read_ply, thinned};
-use deltaz_surface::{analyse, Options};
+use crate::back_real_data::{cobb_angles, correlation, folder, read_ply, thinned, Lattice};
+use deltaz_surface::{analyse, BackAnalysis, Options};
+use std::path::Path;
 
 const SPACING: f64 = 15.0;
 /// The scans carry no σ: the structured-light scanner's is taken as 0.5 mm.
 const SIGMA: f64 = 0.5;
 
+/// One patient's two analyses.
+struct Reading {
+    name: String,
+    cobb: f64,
+    upright: BackAnalysis,
+    bent: BackAnalysis,
+}
+
+impl Reading {
+    fn rotation(&self) -> f64 {
+        self.upright.rotation_max_deg.abs()
+    }
+
+    fn scoliometer(&self) -> f64 {
+        let reading = self.bent.atr_max_deg;
+        reading
+            .expect("a forward-bent analysis reads the scoliometer")
+            .abs()
+    }
+
+    fn asymmetry(&self) -> f64 {
+        let largest = self.upright.asymmetry_max_mm;
+        largest
+            .expect("an upright analysis has an asymmetry map")
+            .abs()
+    }
+}
+
+/// Every patient's scans thinned on `lattice` and analysed (an analysis that fails panics,
+/// naming the scan).
+fn readings(dir: &Path, lattice: Lattice) -> Vec<Reading> {
+    let scan = |name: &str, pose: &str, options: Options| {
+        let path = dir.join(pose).join(format!("{name}.ply"));
+        let points = read_ply(&path).unwrap();
+        analyse(&[thinned(&points, SPACING, lattice, SIGMA)], &options)
+            .unwrap_or_else(|e| panic!("{} on {lattice:?}: {e}", path.display()))
+    };
+    cobb_angles(dir)
+        .into_iter()
+        .map(|(name, cobb)| Reading {
+            upright: scan(&name, "upright", Options::standing()),
+            bent: scan(&name, "adams", Options::forward_bent()),
+            name,
+            cobb,
+        })
+        .collect()
+}
+
+/// r(f, Cobb) over the patients.
+fn r(readings: &[Reading], f: fn(&Reading) -> f64) -> f64 {
+    let cobb: Vec<f64> = readings.iter().map(|p| p.cobb).collect();
+    correlation(&readings.iter().map(f).collect::<Vec<_>>(), &cobb)
+}
+
+/// The fewest levels of any scan.
+fn fewest_levels(readings: &[Reading]) -> usize {
+    let levels = readings.iter().flat_map(|p| [&p.upright, &p.bent]);
+    levels.map(|a| a.levels.len()).min().unwrap_or(0)
+}
+
 #[test]
 fn real_backs_against_cobb() {
     let Some(dir) = folder() else { return };
-    let (mut cobb, mut rotation, mut atr, mut asymmetry) = (vec![], vec![], vec![], vec![]);
-    for (name, angle) in cobb_angles(&dir) {
-        let scan = |pose: &str, options: Options| {
-            let path = dir.join(pose).join(format!("{name}.ply"));
-            let points = read_ply(&path).unwrap();
-            analyse(&[thinned(&points, SPACING, SIGMA)], &options)
-                .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-        };
-        let upright = scan("upright", Options::standing());
-        let bent = scan("adams", Options::forward_bent());
-        assert!(
-            upright.levels.len() >= 15 && bent.levels.len() >= 15,
-            "{name}: too few levels"
-        );
-        let reading = bent
-            .atr_max_deg
-            .expect("a forward-bent analysis reads the scoliometer");
-        let mirror = upright
-            .asymmetry_max_mm
-            .expect("an upright analysis has an asymmetry map");
+    let patients = readings(&dir, Lattice::default());
+    for p in &patients {
         eprintln!(
-            "{name}: Cobb {angle}°, largest rotation {:.1} ± {:.1}°, scoliometer {:.1} ± {:.1}°, \
-             largest asymmetry {mirror:.1} ± {:.1} mm",
-            upright.rotation_max_deg,
-            upright.rotation_max_deg_sigma,
-            reading,
-            bent.atr_max_deg_sigma.unwrap(),
-            upright.asymmetry_max_mm_sigma.unwrap()
+            "{}: Cobb {}°, largest rotation {:.1} ± {:.1}°, scoliometer {:.1} ± {:.1}°, \
+             largest asymmetry {:.1} ± {:.1} mm",
+            p.name,
+            p.cobb,
+            p.upright.rotation_max_deg,
+            p.upright.rotation_max_deg_sigma,
+            p.scoliometer(),
+            p.bent.atr_max_deg_sigma.unwrap(),
+            p.asymmetry(),
+            p.upright.asymmetry_max_mm_sigma.unwrap()
         );
-        cobb.push(angle);
-        rotation.push(upright.rotation_max_deg.abs());
-        atr.push(reading.abs());
-        asymmetry.push(mirror.abs());
     }
-    let (r_rotation, r_atr) = (correlation(&rotation, &cobb), correlation(&atr, &cobb));
-    let r_asymmetry = correlation(&asymmetry, &cobb);
-    eprintln!("real backs ({} patients): r(largest rotation, Cobb) = {r_rotation:.3}, r(scoliometer, Cobb) = {r_atr:.3}, r(largest asymmetry, Cobb) = {r_asymmetry:.3}", cobb.len());
-    assert_eq!(cobb.len(), 10);
+    let (r_rotation, r_atr) = (
+        r(&patients, Reading::rotation),
+        r(&patients, Reading::scoliometer),
+    );
+    let r_asymmetry = r(&patients, Reading::asymmetry);
+    eprintln!("real backs ({} patients): r(largest rotation, Cobb) = {r_rotation:.3}, r(scoliometer, Cobb) = {r_atr:.3}, r(largest asymmetry, Cobb) = {r_asymmetry:.3}", patients.len());
+    assert_eq!(patients.len(), 10);
+    assert!(fewest_levels(&patients) >= 15, "too few levels");
     // Measured 0.704 (rotation) and 0.693 (scoliometer) at 15 mm: below the issue's 0.75.
     // Removing the trunk's turn about the vertical (the mean or a linear fit of the rotation
     // over the levels, the whole back's best plane or quadric, the width line at the pelvis,
@@ -71,4 +117,41 @@ fn real_backs_against_cobb() {
         r_asymmetry >= 0.8,
         "r(largest asymmetry, Cobb) = {r_asymmetry:.3}"
     );
+}
+
+/// Where the dots fall on a back is chance: shifted by half a spacing or turned by 7°, the
+/// lattice still gives every scan a dozen levels or more, and the correlations move by what
+/// the lattice's sampling of ten backs allows. Measured (rotation, scoliometer, asymmetry):
+/// aligned 0.70/0.69/0.89; these four 0.67-0.77, 0.49-0.59, 0.83-0.89. The rotation's and the
+/// asymmetry's floors hold on each; the scoliometer's r is reported, not asserted: its reading
+/// rests on two points of the section, which the lattice moves.
+#[test]
+fn real_backs_wherever_the_lattice_falls() {
+    let Some(dir) = folder() else { return };
+    let placements = [
+        ([0.5, 0.0], 0.0),
+        ([0.0, 0.5], 0.0),
+        ([0.5, 0.5], 0.0),
+        ([0.3, 0.6], -7.0),
+    ];
+    for (offset, turn_deg) in placements {
+        let lattice = Lattice { offset, turn_deg };
+        let patients = readings(&dir, lattice);
+        let (r_rotation, r_atr) = (
+            r(&patients, Reading::rotation),
+            r(&patients, Reading::scoliometer),
+        );
+        let r_asymmetry = r(&patients, Reading::asymmetry);
+        let fewest = fewest_levels(&patients);
+        eprintln!("{lattice:?}: fewest levels {fewest}, r(largest rotation, Cobb) = {r_rotation:.3}, r(scoliometer, Cobb) = {r_atr:.3}, r(largest asymmetry, Cobb) = {r_asymmetry:.3}");
+        assert!(fewest >= 12, "{lattice:?}: {fewest} levels");
+        assert!(
+            r_rotation >= 0.6,
+            "{lattice:?}: r(largest rotation, Cobb) = {r_rotation:.3}"
+        );
+        assert!(
+            r_asymmetry >= 0.8,
+            "{lattice:?}: r(largest asymmetry, Cobb) = {r_asymmetry:.3}"
+        );
+    }
 }

@@ -33,12 +33,26 @@ pub fn cobb_angles(dir: &Path) -> Vec<(String, f64)> {
         .collect()
 }
 
-/// A scan thinned to `spacing` as a frame, each point with an isotropic σ of `sigma` (the
-/// data carry none).
-pub fn thinned(points: &[Vector3<f64>], spacing: f64, sigma: f64) -> Frame {
-    let kept = thin(points, spacing);
+/// Where a dot lattice falls on a scan: its offset in the camera's x-y plane (in spacings)
+/// and its turn about z (degrees).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Lattice {
+    pub offset: [f64; 2],
+    pub turn_deg: f64,
+}
+
+/// A scan thinned to `spacing` on `lattice` as a frame, each point with an isotropic σ of
+/// `sigma` (the data carry none).
+pub fn thinned(points: &[Vector3<f64>], spacing: f64, lattice: Lattice, sigma: f64) -> Frame {
+    let (s, c) = lattice.turn_deg.to_radians().sin_cos();
+    let [dx, dy] = lattice.offset.map(|o| o * spacing);
+    let placed: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| Vector3::new(c * p.x - s * p.y + dx, s * p.x + c * p.y + dy, p.z))
+        .collect();
     Frame::new(
-        kept.into_iter()
+        thin(&placed, spacing)
+            .into_iter()
             .map(|(i, ray)| ScanPoint {
                 position: points[i],
                 covariance: Matrix3::identity() * sigma * sigma,
