@@ -94,9 +94,11 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 }
 
 /// The coarse search over [lo, hi] (a quarter knot apart) in a section measured over `run`:
-/// each candidate's odd-part misfit over the window times that over the widest window up to
-/// twice as wide the run allows (a paraspinal muscle's crest looks symmetric close by, the
-/// trunk about it does not), and the window's linear term's slope.
+/// each candidate's odd-part misfit over the window times that over a wider one (a paraspinal
+/// muscle's crest looks symmetric close by, the trunk about it does not), and the window's
+/// linear term's slope. The wider window is one for all candidates, up to twice the window as
+/// far as the run allows about each: a narrower one near the run's edge would hold less of the
+/// trunk, and favour the candidates there.
 pub(crate) fn coarse(
     fit: &Fit,
     v: f64,
@@ -106,10 +108,10 @@ pub(crate) fn coarse(
 ) -> Vec<(f64, f64, f64)> {
     let step = fit.grid.step / 4.0;
     let count = ((hi - lo) / step).floor() as usize;
+    let wide = (2.0 * w).min(lo - run.0).min(run.1 - hi).max(w);
     (0..=count)
         .filter_map(|k| {
             let x = lo + k as f64 * step;
-            let wide = (2.0 * w).min(x - run.0).min(run.1 - x).max(w);
             let (e, b) = odd_misfit(fit, v, x, w)?;
             let (e_wide, _) = odd_misfit(fit, v, x, wide)?;
             Some((x, e * e_wide, b))

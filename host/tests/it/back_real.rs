@@ -98,7 +98,7 @@ fn real_backs_against_cobb() {
     eprintln!("real backs ({} patients): r(largest rotation, Cobb) = {r_rotation:.3}, r(scoliometer, Cobb) = {r_atr:.3}, r(largest asymmetry, Cobb) = {r_asymmetry:.3}", patients.len());
     assert_eq!(patients.len(), 10);
     assert!(fewest_levels(&patients) >= 15, "too few levels");
-    // Measured 0.704 (rotation) and 0.693 (scoliometer) at 15 mm: below the 0.75.
+    // Measured 0.679 (rotation) and 0.691 (scoliometer) at 15 mm: below the 0.75.
     // Removing the trunk's turn about the vertical (the mean or a linear fit of the rotation
     // over the levels, the whole back's best plane or quadric, the width line at the pelvis,
     // the shoulders or their mean) lowers r to 0.52-0.69: that turn itself follows the Cobb
@@ -120,11 +120,14 @@ fn real_backs_against_cobb() {
 }
 
 /// Where the dots fall on a back is chance: shifted by half a spacing or turned by 7°, the
-/// lattice still gives every scan a dozen levels or more, and the correlations move by what
-/// the lattice's sampling of ten backs allows. Measured (rotation, scoliometer, asymmetry):
-/// aligned 0.70/0.69/0.89; these four 0.67-0.77, 0.49-0.59, 0.83-0.89. The rotation's and the
-/// asymmetry's floors hold on each; the scoliometer's r is reported, not asserted: its reading
-/// rests on two points of the section, which the lattice moves.
+/// lattice still gives every scan 15 levels or more, and the correlations move by what the
+/// lattice's sampling of ten backs allows. Measured (rotation, scoliometer, asymmetry):
+/// aligned 0.68/0.69/0.89; these four 0.66-0.70, 0.51-0.63, 0.84-0.90. The rotation's and the
+/// asymmetry's floors hold on each. The scoliometer's r is reported, not asserted: bent
+/// forward, the lumbar sections of some backs are convex arcs, which are mirror symmetric
+/// about nearly any of their normals, and the lattice decides where the symmetry point, and
+/// so the scoliometer resting on the arc there, sits (patients 2, 4, 9 and 10 read −5 to −13°
+/// on some placements and +10 to +19° on others).
 #[test]
 fn real_backs_wherever_the_lattice_falls() {
     let Some(dir) = folder() else { return };
@@ -144,7 +147,7 @@ fn real_backs_wherever_the_lattice_falls() {
         let r_asymmetry = r(&patients, Reading::asymmetry);
         let fewest = fewest_levels(&patients);
         eprintln!("{lattice:?}: fewest levels {fewest}, r(largest rotation, Cobb) = {r_rotation:.3}, r(scoliometer, Cobb) = {r_atr:.3}, r(largest asymmetry, Cobb) = {r_asymmetry:.3}");
-        assert!(fewest >= 12, "{lattice:?}: {fewest} levels");
+        assert!(fewest >= 15, "{lattice:?}: {fewest} levels");
         assert!(
             r_rotation >= 0.6,
             "{lattice:?}: r(largest rotation, Cobb) = {r_rotation:.3}"

@@ -184,7 +184,8 @@ impl Measured<'_> {
     /// The levels are chained (a trunk's section is nearly circular, and an arc is mirror
     /// symmetric about any of its normals): the coarse candidates of all levels are joined by
     /// the path of least Σ ln(misfit) + Σ (Δx / Δv / [`LEAN`])², then each level is refined
-    /// within a knot of its path.
+    /// within a knot of its path. A level whose path ends its searched range is left out: its
+    /// symmetry point may lie beyond, where the window does not fit the measured run.
     fn symmetry_line(
         &self,
         runs: &[(f64, (f64, f64))],
@@ -214,6 +215,10 @@ impl Measured<'_> {
             .iter()
             .zip(path)
             .filter_map(|((v, run, candidates), x)| {
+                let ends = [candidates.first()?.0, candidates.last()?.0];
+                if ends.contains(&x) {
+                    return None;
+                }
                 let near = (x - margin, x + margin);
                 let s = symmetry_at(self.fit, *v, w, candidates, near, near)?;
                 self.support
