@@ -295,9 +295,13 @@ impl Fit {
         let mut u = DMatrix::zeros(self.common.nrows(), k);
         for (i, row) in self.rows.iter().enumerate() {
             let sw = row.w.sqrt();
+            for (c, d) in self.jacobian(row) {
+                for q in 0..k {
+                    y[(i, q)] += d * z[(c, q)];
+                }
+            }
             for q in 0..k {
-                let s: f64 = self.jacobian(row).map(|(c, d)| d * z[(c, q)]).sum();
-                y[(i, q)] = sw * s;
+                y[(i, q)] *= sw;
                 for (j, uj) in row.u.iter().enumerate() {
                     u[(j, q)] += sw * uj * y[(i, q)];
                 }

@@ -245,14 +245,9 @@ fn largest(vars: &[&Var]) -> Var {
 fn rms(vars: &[&Var]) -> Var {
     let n = vars.len() as f64;
     let value = (vars.iter().map(|v| v.value * v.value).sum::<f64>() / n).sqrt();
-    if value == 0.0 {
-        return Var {
-            value,
-            gradient: vars[0].gradient.clone() * 0.0,
-            sampling: 0.0,
-        };
-    }
-    let terms: Vec<(&Var, f64)> = vars.iter().map(|v| (*v, v.value / (n * value))).collect();
+    // d rms / d v_k = v_k / (n rms); all zero where every value is.
+    let c = if value > 0.0 { 1.0 / (n * value) } else { 0.0 };
+    let terms: Vec<(&Var, f64)> = vars.iter().map(|v| (*v, v.value * c)).collect();
     Var {
         value,
         ..Var::sum(&terms)

@@ -214,11 +214,11 @@ impl Measured<'_> {
         searched
             .iter()
             .zip(path)
-            .filter_map(|((v, run, candidates), x)| {
-                let ends = [candidates.first()?.0, candidates.last()?.0];
-                if ends.contains(&x) {
+            .filter_map(|((v, run, candidates), j)| {
+                if j == 0 || j + 1 == candidates.len() {
                     return None;
                 }
+                let x = candidates[j].0;
                 let near = (x - margin, x + margin);
                 let s = symmetry_at(self.fit, *v, w, candidates, near, near)?;
                 self.support
@@ -296,8 +296,9 @@ impl Measured<'_> {
 const LEAN: f64 = 0.25;
 
 /// The path through each level's coarse candidates (x, misfit, _) of least
-/// Σ ln(misfit) + Σ ((x_k − x_{k−1}) / (v_k − v_{k−1}) / LEAN)² (dynamic programming).
-fn chain(levels: &[(f64, &[Candidate])]) -> Vec<f64> {
+/// Σ ln(misfit) + Σ ((x_k − x_{k−1}) / (v_k − v_{k−1}) / LEAN)² (dynamic programming): the
+/// index of its candidate at each level.
+fn chain(levels: &[(f64, &[Candidate])]) -> Vec<usize> {
     let cost = |c: &Candidate| c.1.max(1e-300).ln();
     let mut total: Vec<Vec<f64>> = Vec::with_capacity(levels.len());
     let mut from: Vec<Vec<usize>> = Vec::with_capacity(levels.len());
@@ -328,9 +329,9 @@ fn chain(levels: &[(f64, &[Candidate])]) -> Vec<f64> {
     let mut j = (0..last.len())
         .min_by(|&a, &b| last[a].total_cmp(&last[b]))
         .unwrap_or(0);
-    let mut path = vec![0.0; levels.len()];
+    let mut path = vec![0; levels.len()];
     for k in (0..levels.len()).rev() {
-        path[k] = levels[k].1[j].0;
+        path[k] = j;
         j = from[k][j];
     }
     path

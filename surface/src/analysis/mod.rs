@@ -198,7 +198,7 @@ pub struct BackAnalysis {
     /// symmetry window): detail between the dots, which the sampling terms of the symmetry
     /// line's and the rotation's σ scale with.
     pub misfit_mm: f64,
-    /// The symmetry line, level by level, level by level (bottom to top).
+    /// The symmetry line, level by level (bottom to top).
     pub levels: Vec<Level>,
     /// The largest surface rotation (the signed value of largest magnitude).
     pub rotation_max_deg: f64,
