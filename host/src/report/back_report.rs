@@ -226,7 +226,7 @@ pub fn indices(a: &BackAnalysis) -> Vec<(&'static str, f64, f64, &'static str)> 
             "°",
         ),
         (
-            "largest mirror asymmetry (depth to the mirrored surface)",
+            "largest mirror asymmetry (the subject's right side nearer the camera than its mirror: +)",
             a.asymmetry_max_mm,
             a.asymmetry_max_mm_sigma,
             "mm",

@@ -212,9 +212,10 @@ impl Measured<'_> {
         )
     }
 
-    /// The asymmetry map's value of largest magnitude (signed) with its σ and its cell (a, v),
-    /// where the cell and its mirror image lie a grid step or more inside the measured surface
-    /// (at its edges the fit ends).
+    /// The asymmetry map's value of largest magnitude (signed) on the +a side of the symmetry
+    /// line (the map is odd about the line: its other side holds the same values negated)
+    /// with its σ and its cell (a, v), where the cell and its mirror image lie a grid step or
+    /// more inside the measured surface (at its edges the fit ends).
     fn largest_inside(&self, map: &Map, levels: &[LevelVars]) -> Option<(f64, f64, [f64; 2])> {
         let na = map.a.len();
         let step = self.fit.grid.step;
@@ -223,8 +224,7 @@ impl Measured<'_> {
             .filter(|(k, _)| {
                 let (a, l) = (map.a[k % na], &levels[k / na]);
                 let mirror = 2.0 * l.x.value - a;
-                self.support
-                    .covers(a.min(mirror) - step, a.max(mirror) + step, l.v)
+                a > l.x.value && self.support.covers(mirror - step, a + step, l.v)
             })
             .filter_map(|(k, (v, s))| Some((v.as_ref()?, s.as_ref()?, k)))
             .max_by(|p, q| p.0.abs().total_cmp(&q.0.abs()))

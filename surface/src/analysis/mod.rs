@@ -236,8 +236,11 @@ pub struct BackAnalysis {
     pub atr_max_deg: Option<f64>,
     /// Its σ.
     pub atr_max_deg_sigma: Option<f64>,
-    /// The asymmetry map's value of largest magnitude (signed), where it and its mirror image
-    /// lie a grid step or more inside the measured surface (None when no cell does). Its σ is
+    /// The asymmetry map's value of largest magnitude on the +a side of the symmetry line
+    /// (standing, the subject's right), where it and its mirror image lie a grid step or more
+    /// inside the measured surface (None when no cell does): positive where that side is nearer
+    /// the camera than its mirror image (the map is odd about the line, so its other side holds
+    /// the same values negated, and the side fixes the sign). Its σ is
     /// its cell's: the largest of many cells leans away from zero with their noise (by 1-3 σ
     /// where the map is nearly flat).
     pub asymmetry_max_mm: Option<f64>,

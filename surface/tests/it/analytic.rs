@@ -229,3 +229,26 @@ fn a_trunk_cut_close_to_the_spine() {
     }
     assert!(analysed >= 1, "no scan analysed");
 }
+
+/// The asymmetry map is odd about the symmetry line (a side against its mirror image, and the
+/// mirror image against the side), so its largest value is read on the +x side: positive when
+/// that side comes toward the camera, on every scan, where either side's cell may be the
+/// larger by the noise.
+#[test]
+fn the_largest_asymmetry_reads_the_right_side() {
+    for scale in [1.0, -1.0] {
+        for seed in 0..10 {
+            let a = analyse(&[scan(scale, seed)], &Options::standing()).unwrap();
+            let (largest, at) = (a.asymmetry_max_mm.unwrap(), a.asymmetry_max_at.unwrap());
+            let line = a
+                .levels
+                .iter()
+                .min_by(|p, q| (p.y - at[1]).abs().total_cmp(&(q.y - at[1]).abs()));
+            assert!(at[0] > line.unwrap().symmetry_x, "seed {seed}: at {at:?}");
+            assert!(
+                largest * scale > 3.0 * a.asymmetry_max_mm_sigma.unwrap(),
+                "scale {scale}, seed {seed}: {largest:.2} mm"
+            );
+        }
+    }
+}
