@@ -394,26 +394,16 @@ impl Covariance {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Uniform numbers in (−1, 1) from a fixed linear congruential sequence.
-    struct Numbers(u64);
-
-    impl Numbers {
-        fn next(&mut self) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        }
-    }
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
 
     /// The reduced solution, the covariance of every part and the redundancy numbers equal
     /// those of the full normal equations inverted densely, on a small problem with two kinds
     /// (blocks of 2, 4 and 3 parameters), global-only observations and priors on both parts.
     #[test]
     fn schur_complement_matches_the_dense_solution() {
-        let mut rand = Numbers(9);
+        let mut rng = StdRng::seed_from_u64(9);
+        let mut next = move || rng.random_range(-1.0..1.0);
         let n = 7;
         let kinds = [
             Kind::new(n, vec![0, 1, 2, 3], vec![2, 4]),
@@ -430,11 +420,11 @@ mod tests {
                 for _ in 0..3 * m {
                     let mut global = Vec::new();
                     for &g in &kind.rows {
-                        if rand.next() > -0.5 {
-                            global.push((g, Vector2::new(rand.next(), rand.next())));
+                        if next() > -0.5 {
+                            global.push((g, Vector2::new(next(), next())));
                         }
                     }
-                    let d = DMatrix::from_fn(2, m, |_, _| rand.next());
+                    let d = DMatrix::from_fn(2, m, |_, _| next());
                     let mut a = DMatrix::zeros(2, n + width);
                     for (g, j) in &global {
                         a.view_mut((0, *g), (2, 1)).copy_from(j);
@@ -444,7 +434,7 @@ mod tests {
                     let group = k + 1;
                     full_rows.push((a, group));
                     rows.push(Linear {
-                        value: Vector2::new(rand.next(), rand.next()),
+                        value: Vector2::new(next(), next()),
                         global,
                         local: Some(Local { kind: k, block, d }),
                         group,
@@ -455,8 +445,8 @@ mod tests {
         for _ in 0..3 * n {
             let mut global = Vec::new();
             for g in 0..n {
-                if rand.next() > 0.0 {
-                    global.push((g, Vector2::new(rand.next(), rand.next())));
+                if next() > 0.0 {
+                    global.push((g, Vector2::new(next(), next())));
                 }
             }
             let mut a = DMatrix::zeros(2, n + width);
@@ -465,7 +455,7 @@ mod tests {
             }
             full_rows.push((a, 0));
             rows.push(Linear {
-                value: Vector2::new(rand.next(), rand.next()),
+                value: Vector2::new(next(), next()),
                 global,
                 local: None,
                 group: 0,
