@@ -20,9 +20,15 @@ impl Measured<'_> {
         let span = last.v - first.v;
         let deviation: Vec<Var> = levels
             .iter()
-            .map(|l| {
-                let f = (l.v - first.v) / span;
-                Var::sum(&[(&l.x, 1.0), (&first.x, f - 1.0), (&last.x, -f)])
+            .enumerate()
+            .map(|(k, l)| {
+                if k == 0 || k + 1 == n {
+                    // The ends lie on the line through them: nought, with no uncertainty.
+                    Var::sum(&[(&l.x, 0.0)])
+                } else {
+                    let f = (l.v - first.v) / span;
+                    Var::sum(&[(&l.x, 1.0), (&first.x, f - 1.0), (&last.x, -f)])
+                }
             })
             .collect();
         let rotations: Vec<&Var> = levels.iter().map(|l| &l.rotation).collect();

@@ -42,23 +42,16 @@ impl Var {
         }
     }
 
-    /// Σ c_k var_k, the vars' sampling errors independent (one var given twice counts once).
+    /// Σ c_k var_k over distinct vars, their sampling errors independent.
     pub(super) fn sum(terms: &[(&Var, f64)]) -> Self {
-        let mut merged: Vec<(&Var, f64)> = Vec::with_capacity(terms.len());
-        for &(var, c) in terms {
-            match merged.iter_mut().find(|(m, _)| std::ptr::eq(*m, var)) {
-                Some(m) => m.1 += c,
-                None => merged.push((var, c)),
-            }
-        }
         let mut gradient = DVector::zeros(terms[0].0.gradient.len());
-        for (var, c) in &merged {
+        for (var, c) in terms {
             gradient.axpy(*c, &var.gradient, 1.0);
         }
         Self {
-            value: merged.iter().map(|(var, c)| c * var.value).sum(),
+            value: terms.iter().map(|(var, c)| c * var.value).sum(),
             gradient,
-            sampling: merged
+            sampling: terms
                 .iter()
                 .map(|(var, c)| (c * var.sampling).powi(2))
                 .sum::<f64>()
