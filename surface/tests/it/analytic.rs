@@ -257,8 +257,8 @@ fn the_largest_asymmetry_reads_the_right_side() {
             .chunks(2)
             .map(|pair| {
                 let c = compare(&pair[0], &pair[1]);
-                let largest = c.indices.iter().find(|i| i.name == "asymmetry_max_mm");
-                let largest = largest.unwrap();
+                let name = "asymmetry_max_mm";
+                let largest = c.indices.iter().find(|i| i.name == name).unwrap();
                 largest.change / largest.sigma
             })
             .collect();
