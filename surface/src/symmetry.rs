@@ -98,7 +98,9 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 /// muscle's crest looks symmetric close by, the trunk about it does not), and the window's
 /// linear term's slope. The wider window is one for all candidates, up to twice the window as
 /// far as the run allows about each: a narrower one near the run's edge would hold less of the
-/// trunk, and favour the candidates there.
+/// trunk, and favour the candidates there. Each local minimum is then found to within
+/// [`TOLERANCE`]: at a spinous groove the misfit's minimum is narrower than the step, and a
+/// candidate a few mm beside it scores worse than a false axis elsewhere.
 pub(crate) fn coarse(
     fit: &Fit,
     v: f64,
@@ -109,14 +111,56 @@ pub(crate) fn coarse(
     let step = fit.grid.step / 4.0;
     let count = ((hi - lo) / step).floor() as usize;
     let wide = (2.0 * w).min(lo - run.0).min(run.1 - hi).max(w);
-    (0..=count)
-        .filter_map(|k| {
-            let x = lo + k as f64 * step;
-            let (e, b) = odd_misfit(fit, v, x, w)?;
-            let (e_wide, _) = odd_misfit(fit, v, x, wide)?;
-            Some((x, e * e_wide, b))
-        })
-        .collect()
+    let at = |x: f64| {
+        let (e, b) = odd_misfit(fit, v, x, w)?;
+        let (e_wide, _) = odd_misfit(fit, v, x, wide)?;
+        Some((x, e * e_wide, b))
+    };
+    let scan: Vec<_> = (0..=count)
+        .filter_map(|k| at(lo + k as f64 * step))
+        .collect();
+    // Each local minimum is searched between its neighbours; a range's end where the misfit
+    // still falls outward stands for a minimum beyond it, and is searched a step further out
+    // (so that it competes as fairly as the refined minima; a path through it drops the level).
+    let refined = |k: usize| {
+        let c = scan[k];
+        let (p, n) = (k.checked_sub(1).map(|j| scan[j]), scan.get(k + 1));
+        let minimum = p.is_none_or(|p| c.1 < p.1) && n.is_none_or(|n| c.1 <= n.1);
+        let (a, b) = match (p, n) {
+            (Some(p), Some(n)) => (p.0, n.0),
+            (None, _) => (c.0 - step, c.0),
+            (_, None) => (c.0, c.0 + step),
+        };
+        let found = minimum.then(|| least(&at, a, b)).flatten();
+        found.filter(|r| r.1 < c.1).unwrap_or(c)
+    };
+    (0..scan.len()).map(refined).collect()
+}
+
+/// The coarse search's refinement of a local minimum (mm).
+const TOLERANCE: f64 = 0.05;
+
+/// The least of `f` over (a, b) by golden-section search, to within [`TOLERANCE`].
+fn least(
+    f: &impl Fn(f64) -> Option<(f64, f64, f64)>,
+    mut a: f64,
+    mut b: f64,
+) -> Option<(f64, f64, f64)> {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let mut p = f(b - g * (b - a))?;
+    let mut q = f(a + g * (b - a))?;
+    while b - a > TOLERANCE {
+        if p.1 < q.1 {
+            b = q.0;
+            q = p;
+            p = f(b - g * (b - a))?;
+        } else {
+            a = p.0;
+            p = q;
+            q = f(a + g * (b - a))?;
+        }
+    }
+    Some(if p.1 < q.1 { p } else { q })
 }
 
 /// The symmetry point at level v with a window of half-width `w`: from the best of the coarse
