@@ -7,6 +7,12 @@
 //! changes from noise alone are flagged). Profiles are compared at the first analysis'
 //! levels, the second's interpolated between its two nearest levels (its σ taken as the
 //! interpolated σ, as if the two levels' errors were fully correlated).
+//!
+//! The largest rotation, lateral deviation and scoliometer reading are compared as magnitudes
+//! (named `|field|`): each is the signed value of largest magnitude over the levels, and where
+//! two levels of opposite sign are within the noise of each other (a double curve) which one
+//! it is, and so its sign, is chance: compared signed, two scans of one back then differ by
+//! twice the value, far beyond its σ.
 
 use crate::analysis::{BackAnalysis, Level};
 use serde::{Deserialize, Serialize};
@@ -89,14 +95,17 @@ fn at(after: &[Level], y: f64, gap: f64, f: Profile) -> Option<(f64, f64)> {
 /// Compares two analyses of one subject (`before`, then `after`).
 pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
     let pairs: [(&str, Index); 10] = [
-        ("rotation_max_deg", |a| {
-            Some((a.rotation_max_deg, a.rotation_max_deg_sigma))
+        ("|rotation_max_deg|", |a| {
+            Some((a.rotation_max_deg.abs(), a.rotation_max_deg_sigma))
         }),
         ("rotation_rms_deg", |a| {
             Some((a.rotation_rms_deg, a.rotation_rms_deg_sigma))
         }),
-        ("lateral_deviation_max_mm", |a| {
-            Some((a.lateral_deviation_max_mm, a.lateral_deviation_max_mm_sigma))
+        ("|lateral_deviation_max_mm|", |a| {
+            Some((
+                a.lateral_deviation_max_mm.abs(),
+                a.lateral_deviation_max_mm_sigma,
+            ))
         }),
         ("lateral_deviation_rms_mm", |a| {
             Some((a.lateral_deviation_rms_mm, a.lateral_deviation_rms_mm_sigma))
@@ -109,7 +118,9 @@ pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
         }),
         ("kyphosis_deg", |a| a.kyphosis_deg.zip(a.kyphosis_deg_sigma)),
         ("lordosis_deg", |a| a.lordosis_deg.zip(a.lordosis_deg_sigma)),
-        ("atr_max_deg", |a| a.atr_max_deg.zip(a.atr_max_deg_sigma)),
+        ("|atr_max_deg|", |a| {
+            a.atr_max_deg.map(f64::abs).zip(a.atr_max_deg_sigma)
+        }),
         ("asymmetry_max_mm", |a| {
             a.asymmetry_max_mm.zip(a.asymmetry_max_mm_sigma)
         }),

@@ -172,7 +172,7 @@ fn analyse_back_writes_its_report_and_compares() {
         .as_array()
         .unwrap()
         .iter()
-        .find(|i| i["name"] == "rotation_max_deg")
+        .find(|i| i["name"] == "|rotation_max_deg|")
         .unwrap();
     assert_eq!(rotation["exceeds_noise"], true, "{rotation}");
 }

@@ -230,12 +230,15 @@ impl IndexErrors {
             let f = (t.0 - first.0) / (last.0 - first.0);
             t.1 - (1.0 - f) * first.1 - f * last.1
         });
+        // The largest values as magnitudes: their sign is chance where two levels of opposite
+        // sign are within the noise (deltaz_surface::compare).
+        let magnitude = |measured: f64, truth: f64| measured.abs() - truth.abs();
         self.rotation_max.push(
-            a.rotation_max_deg - largest(truth.iter().map(|t| t.3)),
+            magnitude(a.rotation_max_deg, largest(truth.iter().map(|t| t.3))),
             a.rotation_max_deg_sigma,
         );
         self.lateral_deviation_max.push(
-            a.lateral_deviation_max_mm - largest(deviation),
+            magnitude(a.lateral_deviation_max_mm, largest(deviation)),
             a.lateral_deviation_max_mm_sigma,
         );
         self.trunk_imbalance.push(
@@ -249,7 +252,7 @@ impl IndexErrors {
         );
         if let (Some(m), Some(sd)) = (a.atr_max_deg, a.atr_max_deg_sigma) {
             self.atr_max
-                .push(m - largest(truth.iter().filter_map(|t| t.4)), sd);
+                .push(magnitude(m, largest(truth.iter().filter_map(|t| t.4))), sd);
         }
         self.largest_rotation.push(a.rotation_max_deg.abs());
         self.add_sagittal(model, a, &axes);

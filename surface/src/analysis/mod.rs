@@ -200,7 +200,10 @@ pub struct BackAnalysis {
     pub misfit_mm: f64,
     /// The symmetry line, level by level (bottom to top).
     pub levels: Vec<Level>,
-    /// The largest surface rotation (the signed value of largest magnitude).
+    /// The largest surface rotation (the signed value of largest magnitude). Its σ is its
+    /// level's, and describes its magnitude: where levels of opposite sign are within the noise
+    /// of each other, which one is the largest, and so the sign, is chance ([`crate::compare`]
+    /// compares magnitudes).
     pub rotation_max_deg: f64,
     /// Its σ.
     pub rotation_max_deg_sigma: f64,
@@ -208,7 +211,8 @@ pub struct BackAnalysis {
     pub rotation_rms_deg: f64,
     /// Its σ.
     pub rotation_rms_deg_sigma: f64,
-    /// The largest lateral deviation (signed).
+    /// The largest lateral deviation (signed; as the largest rotation, its σ describes its
+    /// magnitude).
     pub lateral_deviation_max_mm: f64,
     /// Its σ.
     pub lateral_deviation_max_mm_sigma: f64,
@@ -232,7 +236,8 @@ pub struct BackAnalysis {
     pub lordosis_deg: Option<f64>,
     /// Its σ.
     pub lordosis_deg_sigma: Option<f64>,
-    /// Bent forward: the largest scoliometer angle (signed).
+    /// Bent forward: the largest scoliometer angle (signed; as the largest rotation, its σ
+    /// describes its magnitude).
     pub atr_max_deg: Option<f64>,
     /// Its σ.
     pub atr_max_deg_sigma: Option<f64>,

@@ -150,12 +150,12 @@ fn comparison_flags_a_change_not_noise() {
     };
     let same = compare(&before, &again);
     let changed = compare(&before, &worse);
-    assert!(!flagged(&same, "rotation_max_deg"));
-    assert!(flagged(&changed, "rotation_max_deg"));
+    assert!(!flagged(&same, "|rotation_max_deg|"));
+    assert!(flagged(&changed, "|rotation_max_deg|"));
     let rotation = changed
         .indices
         .iter()
-        .find(|i| i.name == "rotation_max_deg")
+        .find(|i| i.name == "|rotation_max_deg|")
         .unwrap();
     assert!(
         (rotation.change - 0.5 * 0.12f64.to_degrees()).abs() < 1.0,
