@@ -36,6 +36,19 @@ fn check(what: &str, e: &IndexErrors) {
     check_line_and_rotation(what, e);
 }
 
+/// The bars for the symmetry line (2 mm RMS) and the rotation (0.5° RMS, error/σ
+/// 0.8-1.25), the line's error/σ reported only (where its σ's sampling term fits less well).
+fn check_accuracy(what: &str, e: &IndexErrors) {
+    report(what, e);
+    let (x, rotation, z) = (e.symmetry_x.rms(), e.rotation.rms(), e.rotation.z());
+    assert!(x <= 2.0, "{what}: symmetry line {x:.2} mm RMS");
+    assert!(rotation <= 0.5, "{what}: rotation {rotation:.3}° RMS");
+    assert!(
+        (0.8..=1.25).contains(&z),
+        "{what}: rotation's RMS of error/σ {z:.2}"
+    );
+}
+
 fn standing(deformity: Deformity, trunk: Trunk, seed: u64) -> IndexErrors {
     let model = BackModel {
         trunk,
@@ -60,6 +73,37 @@ fn second_trunk() -> Trunk {
         lordosis: 16.0,
         axis_depth: 45.0,
         arm_gap: 8.0,
+        ..Trunk::default()
+    }
+}
+
+/// A third body: broad and flat, a shallow groove, faint paraspinal muscles, high scapulae, no
+/// arms in view.
+fn third_trunk() -> Trunk {
+    Trunk {
+        groove: 1.0,
+        paraspinal: 2.0,
+        paraspinal_width: 20.0,
+        scapula: 12.0,
+        arm_radius: 0.0,
+        ..Trunk::default()
+    }
+}
+
+/// A fourth: a child's, shorter and narrower, with a narrow groove and narrow muscles close to
+/// it.
+fn child_trunk() -> Trunk {
+    Trunk {
+        length: 380.0,
+        half_width: [120.0, 105.0, 135.0],
+        neck: 45.0,
+        depth: 70.0,
+        groove: 4.0,
+        groove_width: 8.0,
+        paraspinal: 7.0,
+        paraspinal_offset: 24.0,
+        paraspinal_width: 10.0,
+        scapula_offset: 70.0,
         ..Trunk::default()
     }
 }
@@ -117,15 +161,7 @@ fn severe_curve_standing() {
 #[test]
 fn second_trunk_straight_back() {
     let e = standing(Deformity::straight(), second_trunk(), 6000);
-    report("second trunk, straight", &e);
-    let (x, rotation) = (e.symmetry_x.rms(), e.rotation.rms());
-    assert!(x <= 2.0, "symmetry line {x:.2} mm RMS");
-    assert!(rotation <= 0.5, "rotation {rotation:.3}° RMS");
-    let z = e.rotation.z();
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "rotation's RMS of error/σ {z:.2}"
-    );
+    check_accuracy("second trunk, straight", &e);
 }
 
 /// The second trunk's double curve.
@@ -329,4 +365,39 @@ fn double_curve_scans_compare_like_for_like() {
     assert!(sign_changes > 0, "no pair exercises the tie");
     assert_eq!(z.len(), 12);
     assert!(rms < 1.5, "RMS change/σ {rms:.2}");
+}
+
+/// Two more bodies against the bars for the symmetry line and the rotation: the broad,
+/// flat third trunk's thoracic curve at 20 mm (its shallow groove leaves the line at 1.85 mm
+/// RMS, error/σ 1.04; the rotation 0.45°, 1.04) and the child's severe curve at 15 mm (the
+/// line 0.53 mm, error/σ 0.81; the rotation 0.35°, 0.99). At 20 mm the child's narrow groove
+/// and muscles are not resolved: on its straight back 11 draws of 15 put the line on a muscle
+/// 30 mm aside (found, not fixed; the README asks for 15 mm on a child's back).
+#[test]
+fn other_bodies() {
+    for (what, trunk, spacing, deformity, seed) in [
+        (
+            "third trunk, thoracic",
+            third_trunk(),
+            SPACING,
+            Deformity::thoracic(),
+            13000,
+        ),
+        (
+            "child, severe, 15 mm",
+            child_trunk(),
+            15.0,
+            Deformity::severe(),
+            14000,
+        ),
+    ] {
+        let model = BackModel {
+            trunk,
+            ..BackModel::standing(deformity)
+        };
+        check_accuracy(
+            what,
+            &scans(&[model], spacing, DRAWS, seed, &Options::standing()),
+        );
+    }
 }
