@@ -98,7 +98,9 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 /// muscle's crest looks symmetric close by, the trunk about it does not), and the window's
 /// linear term's slope. The wider window is one for all candidates, up to twice the window as
 /// far as the run allows about each: a narrower one near the run's edge would hold less of the
-/// trunk, and favour the candidates there. Each local minimum is then found to within
+/// trunk, and favour the candidates there. (The levels search to a window and a knot from
+/// their run's ends, so it is wider than the window only where the run is over two knots wider
+/// than the median: the shoulders, the hips.) Each local minimum is then found to within
 /// [`TOLERANCE`]: at a spinous groove the misfit's minimum is narrower than the step, and a
 /// candidate a few mm beside it scores worse than a false axis elsewhere.
 pub(crate) fn coarse(
