@@ -2,10 +2,11 @@
 //! dots a projector lattice beside the camera puts on the back (20 mm apart), each draw with
 //! its own dot noise (0.4 mm along the line of sight) and calibration error common to all
 //! points (0.3 mm shift, 0.1° turn): five deformities standing on the default trunk, two on a
-//! second trunk of other proportions, four bent forward, and three swayed frames combined.
-//! Every σ is checked by the RMS of error/σ over the draws (0.8-1.25).
+//! second trunk of other proportions, one each on a broad, flat trunk and a child's (at 15 mm),
+//! four bent forward, and three swayed frames combined. Every σ is checked by the RMS of
+//! error/σ over the draws (0.8-1.25), the symmetry line's where the body's detail is resolved.
 
-use crate::back_sim::{check_line_and_rotation, scans, IndexErrors};
+use crate::back_sim::{check_accuracy, check_line_and_rotation, scans, IndexErrors};
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_surface::Options;
 use nalgebra::Vector3;
@@ -34,19 +35,6 @@ fn report(what: &str, e: &IndexErrors) {
 fn check(what: &str, e: &IndexErrors) {
     report(what, e);
     check_line_and_rotation(what, e);
-}
-
-/// The bars for the symmetry line (2 mm RMS) and the rotation (0.5° RMS, error/σ
-/// 0.8-1.25), the line's error/σ reported only (where its σ's sampling term fits less well).
-fn check_accuracy(what: &str, e: &IndexErrors) {
-    report(what, e);
-    let (x, rotation, z) = (e.symmetry_x.rms(), e.rotation.rms(), e.rotation.z());
-    assert!(x <= 2.0, "{what}: symmetry line {x:.2} mm RMS");
-    assert!(rotation <= 0.5, "{what}: rotation {rotation:.3}° RMS");
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "{what}: rotation's RMS of error/σ {z:.2}"
-    );
 }
 
 fn standing(deformity: Deformity, trunk: Trunk, seed: u64) -> IndexErrors {
@@ -161,6 +149,7 @@ fn severe_curve_standing() {
 #[test]
 fn second_trunk_straight_back() {
     let e = standing(Deformity::straight(), second_trunk(), 6000);
+    report("second trunk, straight", &e);
     check_accuracy("second trunk, straight", &e);
 }
 
@@ -395,9 +384,8 @@ fn other_bodies() {
             trunk,
             ..BackModel::standing(deformity)
         };
-        check_accuracy(
-            what,
-            &scans(&[model], spacing, DRAWS, seed, &Options::standing()),
-        );
+        let e = scans(&[model], spacing, DRAWS, seed, &Options::standing());
+        report(what, &e);
+        check_accuracy(what, &e);
     }
 }
