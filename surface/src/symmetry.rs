@@ -14,6 +14,9 @@ use crate::fit::Fit;
 use crate::spline::D;
 use nalgebra::{DVector, Matrix2, Vector2};
 
+/// A coarse candidate: position, misfit, slope.
+pub(crate) type Candidate = (f64, f64, f64);
+
 /// Samples of the window on each side.
 const SAMPLES: usize = 24;
 
@@ -109,7 +112,7 @@ pub(crate) fn coarse(
     w: f64,
     (lo, hi): (f64, f64),
     run: (f64, f64),
-) -> Vec<(f64, f64, f64)> {
+) -> Vec<Candidate> {
     let step = fit.grid.step / 4.0;
     let count = ((hi - lo) / step).floor() as usize;
     let wide = (2.0 * w).min(lo - run.0).min(run.1 - hi).max(w);
@@ -143,11 +146,7 @@ pub(crate) fn coarse(
 const TOLERANCE: f64 = 0.05;
 
 /// The least of `f` over (a, b) by golden-section search, to within [`TOLERANCE`].
-fn least(
-    f: &impl Fn(f64) -> Option<(f64, f64, f64)>,
-    mut a: f64,
-    mut b: f64,
-) -> Option<(f64, f64, f64)> {
+fn least(f: &impl Fn(f64) -> Option<Candidate>, mut a: f64, mut b: f64) -> Option<Candidate> {
     let g = 0.5 * (5f64.sqrt() - 1.0);
     let mut p = f(b - g * (b - a))?;
     let mut q = f(a + g * (b - a))?;
@@ -172,7 +171,7 @@ pub(crate) fn symmetry_at(
     fit: &Fit,
     v: f64,
     w: f64,
-    candidates: &[(f64, f64, f64)],
+    candidates: &[Candidate],
     near: (f64, f64),
     (lo, hi): (f64, f64),
 ) -> Option<Symmetry> {

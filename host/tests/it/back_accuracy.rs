@@ -322,37 +322,29 @@ fn vertical_follows_a_rolled_camera() {
 /// sign changed gave 9σ.
 #[test]
 fn double_curve_scans_compare_like_for_like() {
-    use crate::back_sim::{back_dots, common_draw, frame, rng, Noise};
-    use deltaz_surface::{analyse, compare};
+    use crate::back_sim::{back_dots, scanned, Errors, Noise};
+    use deltaz_surface::compare;
     let model = BackModel {
         trunk: second_trunk(),
         ..BackModel::standing(Deformity::double())
     };
-    let dots = back_dots(&model, SPACING);
+    let dots = [back_dots(&model, SPACING)];
     let noise = Noise::issue();
-    let scan = |k: u64| {
-        let mut r = rng(4000 + k);
-        let delta = common_draw(&noise, &mut r);
-        analyse(
-            &[frame(&dots, &noise, &delta, &mut r)],
-            &Options::standing(),
-        )
-        .unwrap()
-    };
-    let (mut sign_changes, mut z) = (0, Vec::new());
+    let scan = |k: u64| scanned(&dots, &noise, 4000 + k, &Options::standing()).unwrap();
+    let (mut sign_changes, mut changes) = (0, Errors::default());
     for pair in 0..6 {
         let (a, b) = (scan(2 * pair), scan(2 * pair + 1));
         sign_changes += usize::from(a.lateral_deviation_max_mm * b.lateral_deviation_max_mm < 0.0);
         for c in compare(&a, &b).indices {
             if ["|lateral_deviation_max_mm|", "|rotation_max_deg|"].contains(&c.name.as_str()) {
-                z.push(c.change / c.sigma);
+                changes.push(c.change, c.sigma);
             }
         }
     }
-    let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len() as f64).sqrt();
-    eprintln!("double curve, six pairs of scans: {sign_changes} changed the sign of the largest lateral deviation; RMS change/σ of the largest values {rms:.2} ({z:.2?})");
+    let rms = changes.z();
+    eprintln!("double curve, six pairs of scans: {sign_changes} changed the sign of the largest lateral deviation; RMS change/σ of the largest values {rms:.2}");
     assert!(sign_changes > 0, "no pair exercises the tie");
-    assert_eq!(z.len(), 12);
+    assert_eq!(changes.count(), 12);
     assert!(rms < 1.5, "RMS change/σ {rms:.2}");
 }
 

@@ -2,7 +2,7 @@
 //! camera's line of sight) and the calibration's error common to all points of a scan.
 
 use deltaz_host::simulate::back::{Axes, BackModel, Lattice, LatticeDot};
-use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint};
+use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint, SurfaceError};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -366,15 +366,26 @@ pub fn scans(
     let noise = Noise::issue();
     let mut errors = IndexErrors::default();
     for k in 0..draws {
-        let mut r = rng(seed + k);
-        let delta = common_draw(&noise, &mut r);
-        let frames: Vec<Frame> = dots
-            .iter()
-            .map(|d| frame(d, &noise, &delta, &mut r))
-            .collect();
-        let a = analyse(&frames, options)
+        let a = scanned(&dots, &noise, seed + k, options)
             .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
         errors.add(&models[0], &a);
     }
     errors
+}
+
+/// One draw (`seed`): a frame of each of `dots` with its own noise and the common error, all
+/// analysed together with `options`.
+pub fn scanned(
+    dots: &[Vec<LatticeDot>],
+    noise: &Noise,
+    seed: u64,
+    options: &Options,
+) -> Result<BackAnalysis, SurfaceError> {
+    let mut r = rng(seed);
+    let delta = common_draw(noise, &mut r);
+    let frames: Vec<Frame> = dots
+        .iter()
+        .map(|d| frame(d, noise, &delta, &mut r))
+        .collect();
+    analyse(&frames, options)
 }

@@ -6,14 +6,12 @@ use crate::fit::Fit;
 use crate::scoliometer::resting_line;
 use crate::spline::D;
 use crate::support::Support;
-use crate::symmetry::{coarse, symmetry_at, Symmetry};
+use crate::symmetry::{coarse, symmetry_at, Candidate, Symmetry};
 use crate::SurfaceError;
 use nalgebra::DVector;
 
 /// A level and the run (a from, a to) of measured surface along it.
 type Run = (f64, (f64, f64));
-/// A coarse candidate: position, misfit, slope.
-type Candidate = (f64, f64, f64);
 
 /// The fitted surface with where it was measured.
 pub(super) struct Measured<'a> {
