@@ -302,15 +302,13 @@ const SKIP: f64 = 15.0;
 /// programming): the index of its candidate at each level, `None` where it is left out.
 fn chain(levels: &[(f64, &[Candidate])]) -> Vec<Option<usize>> {
     let cost = |c: &Candidate| c.1.max(1e-300).ln();
-    let skip: Vec<f64> = levels
-        .iter()
-        .map(|(_, c)| c.iter().map(cost).fold(f64::INFINITY, f64::min) + SKIP)
-        .collect();
-    // skipped[k]: Σ skip over the levels before k.
+    // skipped[k]: the cost of leaving out every level before k.
     let mut skipped = vec![0.0];
-    for s in &skip {
-        skipped.push(skipped[skipped.len() - 1] + s);
+    for (_, c) in levels {
+        let best = c.iter().map(cost).fold(f64::INFINITY, f64::min);
+        skipped.push(skipped[skipped.len() - 1] + best + SKIP);
     }
+    // The cost of leaving out the levels between j and k.
     let between = |j: usize, k: usize| skipped[k] - skipped[j + 1];
     // total[k][i]: the least cost of a path whose last kept level is k at candidate i; from:
     // the kept level and candidate before it.
@@ -341,7 +339,7 @@ fn chain(levels: &[(f64, &[Candidate])]) -> Vec<Option<usize>> {
     let mut least = skipped[n];
     for (k, row) in total.iter().enumerate() {
         for (i, t) in row.iter().enumerate() {
-            let end = t + skipped[n] - skipped[k + 1];
+            let end = t + between(k, n);
             if end < least {
                 least = end;
                 last = Some((k, i));
