@@ -139,16 +139,35 @@ pub fn report_html(report: &BackReport) -> Result<String> {
             escape(caption)
         );
     }
-    html += "<h2>Levels</h2>\n<table><tr><th>level y (mm)</th><th>symmetry x (mm)</th>\
-             <th>rotation (°)</th><th>lateral deviation (mm)</th></tr>\n";
+    html += "<h2>Levels</h2>\n";
+    let ambiguous = a
+        .levels
+        .iter()
+        .filter(|l| l.symmetry_x_rival.is_some())
+        .count();
+    if ambiguous > 0 {
+        let _ = writeln!(
+            html,
+            "<p class=\"note\">At {ambiguous} of {} levels the back is about as nearly mirror \
+             symmetric about a second line as about the symmetry line (the other symmetry x \
+             below): the scan does not tell which one the spine follows there. The values at \
+             those levels, and the measures taken from them, include the difference between \
+             the two in their σ.</p>",
+            a.levels.len()
+        );
+    }
+    html += "<table><tr><th>level y (mm)</th><th>symmetry x (mm)</th>\
+             <th>rotation (°)</th><th>lateral deviation (mm)</th><th>other symmetry x (mm)</th></tr>\n";
     for l in &a.levels {
         let _ = writeln!(
             html,
-            "<tr><td>{:.0}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<tr><td>{:.0}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             l.y,
             plus_minus(l.symmetry_x, l.symmetry_x_sigma),
             plus_minus(l.rotation_deg, l.rotation_sigma_deg),
-            plus_minus(l.lateral_deviation_mm, l.lateral_deviation_sigma_mm)
+            plus_minus(l.lateral_deviation_mm, l.lateral_deviation_sigma_mm),
+            l.symmetry_x_rival
+                .map_or(String::new(), |x| format!("{x:.1}"))
         );
     }
     html += "</table>\n<p>Clouds: ";

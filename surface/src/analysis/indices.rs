@@ -112,6 +112,7 @@ impl Measured<'_> {
                 atr_deg: l.atr.as_ref().map(|a| deg(a.0.value)),
                 atr_sigma_deg: sd(k[6]).map(deg),
                 atr_window: l.atr.as_ref().map(|a| a.1),
+                symmetry_x_rival: l.rival_x,
             })
             .collect();
         let s = |i: usize| sd(scalar_slots[i]).unwrap_or(f64::NAN);

@@ -13,6 +13,15 @@ use nalgebra::DVector;
 /// A level and the run (a from, a to) of measured surface along it.
 type Run = (f64, (f64, f64));
 
+/// A level of the symmetry line: its symmetry point, a rival's where the line is ambiguous
+/// there, and the run (a from, a to) of measured surface along it.
+struct Found {
+    v: f64,
+    symmetry: Symmetry,
+    rival: Option<Symmetry>,
+    run: (f64, f64),
+}
+
 /// The fitted surface with where it was measured.
 pub(super) struct Measured<'a> {
     pub(super) fit: &'a Fit,
@@ -37,6 +46,16 @@ impl Var {
             value: slope.atan(),
             gradient: gradient * d,
             sampling: sampling * d,
+        }
+    }
+
+    /// This value where it may as well be `rival`'s (the symmetry line ambiguous): its
+    /// sampling term holds the two's half-difference (the σ of a value that is one of the
+    /// two), in quadrature.
+    fn or(self, rival: &Var) -> Self {
+        Self {
+            sampling: self.sampling.hypot(0.5 * (self.value - rival.value)),
+            ..self
         }
     }
 
@@ -91,6 +110,31 @@ pub(super) struct LevelVars {
     pub(super) sagittal: Var,
     pub(super) skin: Option<Var>,
     pub(super) atr: Option<(Var, [f64; 2])>,
+    /// The rival symmetry point where the line is ambiguous.
+    pub(super) rival_x: Option<f64>,
+}
+
+impl LevelVars {
+    /// This level's values where the symmetry point may as well be `rival`'s ([`Var::or`]).
+    fn or(self, rival: LevelVars) -> Self {
+        let both = |p: Option<Var>, q: Option<Var>| match (p, q) {
+            (Some(p), Some(q)) => Some(p.or(&q)),
+            (p, _) => p,
+        };
+        Self {
+            x: self.x.or(&rival.x),
+            depth: self.depth.or(&rival.depth),
+            rotation: self.rotation.or(&rival.rotation),
+            sagittal: self.sagittal.or(&rival.sagittal),
+            skin: both(self.skin, rival.skin),
+            atr: match (self.atr, rival.atr) {
+                (Some((p, window)), Some((q, _))) => Some((p.or(&q), window)),
+                (p, _) => p,
+            },
+            rival_x: Some(rival.x.value),
+            ..self
+        }
+    }
 }
 
 impl Measured<'_> {
@@ -131,10 +175,10 @@ impl Measured<'_> {
             return Err(SurfaceError::NoLevels);
         }
         let w = width / 4.0;
-        let length = found.last().map_or(0.0, |l| l.0) - found[0].0;
+        let length = found.last().map_or(0.0, |l| l.v) - found[0].v;
         let skin_d = 0.1 * length;
         let atr_half = width / 3.0;
-        let line: Vec<(f64, f64)> = found.iter().map(|(v, s, _)| (*v, s.a)).collect();
+        let line: Vec<(f64, f64)> = found.iter().map(|f| (f.v, f.symmetry.a)).collect();
         let misfit = self.misfit_along(&line, w, spacing);
         let sampling = Sampling {
             line: K_LINE * misfit,
@@ -142,7 +186,14 @@ impl Measured<'_> {
         };
         let levels: Vec<LevelVars> = found
             .iter()
-            .map(|(v, s, run)| self.level(*v, s, *run, skin_d, atr_half, sampling))
+            .map(|f| {
+                let at = |s: &Symmetry| self.level(f.v, s, f.run, skin_d, atr_half, sampling);
+                let level = at(&f.symmetry);
+                match &f.rival {
+                    Some(rival) => level.or(at(rival)),
+                    None => level,
+                }
+            })
             .collect();
         Ok(self.summarise(levels, w, skin_d, spacing, misfit))
     }
@@ -175,15 +226,12 @@ impl Measured<'_> {
     /// The levels are chained (a trunk's section is nearly circular, and an arc is mirror
     /// symmetric about any of its normals): the coarse candidates of all levels are joined by
     /// the path of least Σ ln(misfit) + Σ (Δx / Δv / [`LEAN`])², then each level is refined
-    /// within a knot of its path. A level whose path ends its searched range is left out: its
-    /// symmetry point may lie beyond, where the window does not fit the measured run. So is a
-    /// level the path passes by ([`SKIP`]): one whose run the trunk's outline cuts short, seen
-    /// through a turned lattice, holds candidates far from the line only.
-    fn symmetry_line(
-        &self,
-        runs: &[(f64, (f64, f64))],
-        width: f64,
-    ) -> Vec<(f64, Symmetry, (f64, f64))> {
+    /// within a knot of its path, and of its rival's where the line is ambiguous ([`chain`]).
+    /// A level whose path ends its searched range is left out: its symmetry point may lie
+    /// beyond, where the window does not fit the measured run. So is a level the path passes
+    /// by ([`SKIP`]): one whose run the trunk's outline cuts short, seen through a turned
+    /// lattice, holds candidates far from the line only.
+    fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64) -> Vec<Found> {
         let w = width / 4.0;
         let margin = self.fit.grid.step;
         let searched: Vec<_> = runs
@@ -203,21 +251,32 @@ impl Measured<'_> {
                 .iter()
                 .map(|(v, _, c)| (*v, c.as_slice()))
                 .collect::<Vec<_>>(),
+            margin,
         );
         searched
             .iter()
             .zip(path)
-            .filter_map(|((v, run, candidates), j)| {
-                let j = j?;
-                if j == 0 || j + 1 == candidates.len() {
-                    return None;
-                }
-                let x = candidates[j].0;
-                let near = (x - margin, x + margin);
-                let s = symmetry_at(self.fit, *v, w, candidates, near, near)?;
-                self.support
-                    .covers(s.a - w - margin, s.a + w + margin, *v)
-                    .then_some((*v, s, *run))
+            .filter_map(|((v, run, candidates), link)| {
+                let at_end = |j: usize| j == 0 || j + 1 == candidates.len();
+                let link = link.filter(|l| !at_end(l.chosen))?;
+                let refined = |j: usize| {
+                    let near = (candidates[j].0 - margin, candidates[j].0 + margin);
+                    let s = symmetry_at(self.fit, *v, w, candidates, near, near)?;
+                    self.support
+                        .covers(s.a - w - margin, s.a + w + margin, *v)
+                        .then_some(s)
+                };
+                let rival = match link.rival {
+                    Some(j) if at_end(j) => return None,
+                    Some(j) => Some(refined(j)?),
+                    None => None,
+                };
+                Some(Found {
+                    v: *v,
+                    symmetry: refined(link.chosen)?,
+                    rival,
+                    run: *run,
+                })
             })
             .collect()
     }
@@ -281,6 +340,7 @@ impl Measured<'_> {
             sagittal,
             skin,
             atr,
+            rival_x: None,
         }
     }
 }
@@ -296,60 +356,132 @@ const LEAN: f64 = 0.25;
 /// keeps are as many as without it (with 9 nats, up to three fewer).
 const SKIP: f64 = 15.0;
 
+/// What a rival path may cost beyond the chosen one for the symmetry line to be ambiguous
+/// where they part. On the real forward-bent backs, where a section is a convex arc with two
+/// mirror axes, where the lattice falls moves the difference between the two paths by about
+/// ±5 nats (one patient's stretch of 17 levels: +3.4, −7.6 and +2.0 nats on three placements),
+/// and the chain takes either; on the simulated backs no rival comes within 13 nats (of 4,553
+/// levels, one under 20).
+const AMBIGUOUS: f64 = 10.0;
+
+/// A level's place on the chain: the candidate the path takes, and where a path more than
+/// `apart` away there costs at most [`AMBIGUOUS`] more, that path's candidate.
+#[derive(Debug, Clone, Copy)]
+struct Link {
+    chosen: usize,
+    rival: Option<usize>,
+}
+
 /// The path through each level's coarse candidates (x, misfit, _) of least
 /// Σ ln(misfit) + Σ ((x_k − x_j) / (v_k − v_j) / LEAN)² over the levels it keeps (j the kept
 /// level before k), a level left out costing [`SKIP`] more than its best candidate (dynamic
-/// programming): the index of its candidate at each level, `None` where it is left out.
-fn chain(levels: &[(f64, &[Candidate])]) -> Vec<Option<usize>> {
-    let cost = |c: &Candidate| c.1.max(1e-300).ln();
-    // skipped[k]: the cost of leaving out every level before k.
-    let mut skipped = vec![0.0];
-    for (_, c) in levels {
-        let best = c.iter().map(cost).fold(f64::INFINITY, f64::min);
-        skipped.push(skipped[skipped.len() - 1] + best + SKIP);
-    }
-    // The cost of leaving out the levels between j and k.
-    let between = |j: usize, k: usize| skipped[k] - skipped[j + 1];
-    // total[k][i]: the least cost of a path whose last kept level is k at candidate i; from:
-    // the kept level and candidate before it.
-    let mut total: Vec<Vec<f64>> = Vec::with_capacity(levels.len());
-    let mut from: Vec<Vec<Option<(usize, usize)>>> = Vec::with_capacity(levels.len());
-    for (k, (v, candidates)) in levels.iter().enumerate() {
-        let row: Vec<(f64, Option<(usize, usize)>)> = candidates
-            .iter()
-            .map(|c| {
-                let mut best = (skipped[k], None);
-                for (j, (pv, prev)) in levels[..k].iter().enumerate() {
-                    for (i, p) in prev.iter().enumerate() {
-                        let lean = (c.0 - p.0) / (v - pv) / LEAN;
-                        let step = total[j][i] + between(j, k) + lean * lean;
-                        if step < best.0 {
-                            best = (step, Some((j, i)));
+/// programming), with the rival at each level: of the least paths through each candidate (the
+/// two passes' min-marginals), the least at a local minimum over the level's candidates more
+/// than `apart` from the path's, if it is within [`AMBIGUOUS`] of the path (a second mirror
+/// axis the chain cannot tell from the first). `None` where a level is left out.
+fn chain(levels: &[(f64, &[Candidate])], apart: f64) -> Vec<Option<Link>> {
+    let ahead = Pass::run(levels.iter().copied());
+    let behind = Pass::run(levels.iter().rev().copied());
+    let n = levels.len();
+    ahead
+        .path()
+        .into_iter()
+        .enumerate()
+        .map(|(k, chosen)| {
+            let chosen = chosen?;
+            let c = levels[k].1;
+            let through: Vec<f64> = (0..c.len())
+                .map(|j| ahead.total[k][j] + behind.total[n - 1 - k][j] - cost(&c[j]))
+                .collect();
+            let local = |j: usize| {
+                (j == 0 || through[j] <= through[j - 1])
+                    && through.get(j + 1).is_none_or(|t| through[j] <= *t)
+            };
+            let rival = (0..c.len())
+                .filter(|&j| local(j) && (c[j].0 - c[chosen].0).abs() > apart)
+                .min_by(|&p, &q| through[p].total_cmp(&through[q]))
+                .filter(|&j| through[j] - ahead.least <= AMBIGUOUS);
+            Some(Link { chosen, rival })
+        })
+        .collect()
+}
+
+fn cost(c: &Candidate) -> f64 {
+    c.1.max(1e-300).ln()
+}
+
+/// One pass of the chain's dynamic programming over the levels in the order given.
+struct Pass {
+    /// total[k][i]: the least cost of a path whose last kept level is k at candidate i.
+    total: Vec<Vec<f64>>,
+    /// The kept level and candidate before it.
+    from: Vec<Vec<Option<(usize, usize)>>>,
+    /// The least cost of a whole path, and its last kept level and candidate.
+    least: f64,
+    last: Option<(usize, usize)>,
+}
+
+impl Pass {
+    fn run<'a>(levels: impl Iterator<Item = (f64, &'a [Candidate])>) -> Self {
+        let levels: Vec<_> = levels.collect();
+        // skipped[k]: the cost of leaving out every level before k.
+        let mut skipped = vec![0.0];
+        for (_, c) in &levels {
+            let best = c.iter().map(cost).fold(f64::INFINITY, f64::min);
+            skipped.push(skipped[skipped.len() - 1] + best + SKIP);
+        }
+        // The cost of leaving out the levels between j and k.
+        let between = |j: usize, k: usize| skipped[k] - skipped[j + 1];
+        let mut total: Vec<Vec<f64>> = Vec::with_capacity(levels.len());
+        let mut from: Vec<Vec<Option<(usize, usize)>>> = Vec::with_capacity(levels.len());
+        for (k, (v, candidates)) in levels.iter().enumerate() {
+            let row: Vec<(f64, Option<(usize, usize)>)> = candidates
+                .iter()
+                .map(|c| {
+                    let mut best = (skipped[k], None);
+                    for (j, (pv, prev)) in levels[..k].iter().enumerate() {
+                        for (i, p) in prev.iter().enumerate() {
+                            let lean = (c.0 - p.0) / (v - pv) / LEAN;
+                            let step = total[j][i] + between(j, k) + lean * lean;
+                            if step < best.0 {
+                                best = (step, Some((j, i)));
+                            }
                         }
                     }
+                    (cost(c) + best.0, best.1)
+                })
+                .collect();
+            total.push(row.iter().map(|r| r.0).collect());
+            from.push(row.iter().map(|r| r.1).collect());
+        }
+        let n = levels.len();
+        let mut last = None;
+        let mut least = skipped[n];
+        for (k, row) in total.iter().enumerate() {
+            for (i, t) in row.iter().enumerate() {
+                let end = t + between(k, n);
+                if end < least {
+                    least = end;
+                    last = Some((k, i));
                 }
-                (cost(c) + best.0, best.1)
-            })
-            .collect();
-        total.push(row.iter().map(|r| r.0).collect());
-        from.push(row.iter().map(|r| r.1).collect());
-    }
-    let n = levels.len();
-    let mut last = None;
-    let mut least = skipped[n];
-    for (k, row) in total.iter().enumerate() {
-        for (i, t) in row.iter().enumerate() {
-            let end = t + between(k, n);
-            if end < least {
-                least = end;
-                last = Some((k, i));
             }
         }
+        Self {
+            total,
+            from,
+            least,
+            last,
+        }
     }
-    let mut path = vec![None; n];
-    while let Some((k, i)) = last {
-        path[k] = Some(i);
-        last = from[k][i];
+
+    /// The least path: its candidate at each level, `None` where it is left out.
+    fn path(&self) -> Vec<Option<usize>> {
+        let mut path = vec![None; self.total.len()];
+        let mut last = self.last;
+        while let Some((k, i)) = last {
+            path[k] = Some(i);
+            last = self.from[k][i];
+        }
+        path
     }
-    path
 }

@@ -142,6 +142,12 @@ pub struct Level {
     pub atr_sigma_deg: Option<f64>,
     /// The window (a from, a to) the scoliometer rested on.
     pub atr_window: Option<[f64; 2]>,
+    /// Where the symmetry line is ambiguous here (a second mirror axis more than a knot away
+    /// that the chain of levels cannot tell from this one): that axis' symmetry point across.
+    /// Every value measured at the line then carries the half-difference of its two readings
+    /// in its σ (None where the line is unambiguous; absent in files of older versions).
+    #[serde(default)]
+    pub symmetry_x_rival: Option<f64>,
 }
 
 /// A map over the analysis plane: `values[j * a.len() + i]` at (a[i], v[j]) (mm).
