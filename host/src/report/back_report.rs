@@ -140,22 +140,7 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         );
     }
     html += "<h2>Levels</h2>\n";
-    let ambiguous = a
-        .levels
-        .iter()
-        .filter(|l| l.symmetry_x_rival.is_some())
-        .count();
-    if ambiguous > 0 {
-        let _ = writeln!(
-            html,
-            "<p class=\"note\">At {ambiguous} of {} levels the back is about as nearly mirror \
-             symmetric about a second line as about the symmetry line (the other symmetry x \
-             below): the scan does not tell which one the spine follows there. The values at \
-             those levels, and the measures taken from them, include the difference between \
-             the two in their σ.</p>",
-            a.levels.len()
-        );
-    }
+    html += &ambiguity_note(&a.levels);
     html += "<table><tr><th>level y (mm)</th><th>symmetry x (mm)</th>\
              <th>rotation (°)</th><th>lateral deviation (mm)</th><th>other symmetry x (mm)</th></tr>\n";
     for l in &a.levels {
@@ -181,6 +166,25 @@ pub fn report_html(report: &BackReport) -> Result<String> {
     );
     html += ". Written by deltaz.</p>\n</body></html>\n";
     Ok(html)
+}
+
+/// What the page says where the symmetry line is ambiguous (nothing where it is not).
+fn ambiguity_note(levels: &[Level]) -> String {
+    let ambiguous = levels
+        .iter()
+        .filter(|l| l.symmetry_x_rival.is_some())
+        .count();
+    if ambiguous == 0 {
+        return String::new();
+    }
+    format!(
+        "<p class=\"note\">At {ambiguous} of {} levels the back is about as nearly mirror \
+         symmetric about a second line as about the symmetry line (the other symmetry x below): \
+         the scan does not tell which one the spine follows there. The values at those levels, \
+         and the measures taken from them, include the difference between the two in their \
+         σ.</p>\n",
+        levels.len()
+    )
 }
 
 /// The two figures of a surface at a glance (SVG): the topography (depth colours, contour lines
@@ -532,6 +536,29 @@ mod tests {
         assert_eq!(plus_minus(10.3, 0.25), "10.3 ± 0.2");
         assert_eq!(plus_minus(0.05, 0.004), "0.050 ± 0.004");
         assert_eq!(plus_minus(150.0, 12.0), "150.0 ± 12.0");
+    }
+
+    #[test]
+    fn ambiguous_levels_are_named() {
+        let level = |rival: Option<f64>| -> Level {
+            serde_json::from_value(serde_json::json!({
+                "y": 0.0, "symmetry_x": 1.0, "symmetry_x_sigma": 0.5, "depth_mm": 0.0,
+                "depth_sigma_mm": 0.1, "rotation_deg": 0.0, "rotation_sigma_deg": 0.1,
+                "lateral_deviation_mm": 0.0, "lateral_deviation_sigma_mm": 0.1,
+                "sagittal_slope_deg": 0.0, "sagittal_slope_sigma_deg": 0.1,
+                "skin_angle_deg": null, "skin_angle_sigma_deg": null, "atr_deg": null,
+                "atr_sigma_deg": null, "atr_window": null, "symmetry_x_rival": rival
+            }))
+            .unwrap()
+        };
+        assert_eq!(ambiguity_note(&[level(None), level(None)]), "");
+        // A file of an older version, without the field, reads as unambiguous.
+        let mut old = serde_json::to_value(level(None)).unwrap();
+        old.as_object_mut().unwrap().remove("symmetry_x_rival");
+        let old: Level = serde_json::from_value(old).unwrap();
+        assert_eq!(old.symmetry_x_rival, None);
+        let note = ambiguity_note(&[level(None), level(Some(-40.0)), level(Some(-41.0))]);
+        assert!(note.contains("At 2 of 3 levels"), "{note}");
     }
 
     #[test]
