@@ -366,7 +366,6 @@ const AMBIGUOUS: f64 = 10.0;
 
 /// A level's place on the chain: the candidate the path takes, and where a path more than
 /// `apart` away there costs at most [`AMBIGUOUS`] more, that path's candidate.
-#[derive(Debug, Clone, Copy)]
 struct Link {
     chosen: usize,
     rival: Option<usize>,
@@ -379,6 +378,8 @@ struct Link {
 /// two passes' min-marginals), the least at a local minimum over the level's candidates more
 /// than `apart` from the path's, if it is within [`AMBIGUOUS`] of the path (a second mirror
 /// axis the chain cannot tell from the first). `None` where a level is left out.
+/// (On the real backs a level the chain would as well leave out, by the same margin, is common
+/// well inside the line: leaving those out kept as few as 9 levels of a scan.)
 fn chain(levels: &[(f64, &[Candidate])], apart: f64) -> Vec<Option<Link>> {
     let ahead = Pass::run(levels.iter().copied());
     let behind = Pass::run(levels.iter().rev().copied());
@@ -390,6 +391,8 @@ fn chain(levels: &[(f64, &[Candidate])], apart: f64) -> Vec<Option<Link>> {
         .map(|(k, chosen)| {
             let chosen = chosen?;
             let c = levels[k].1;
+            // The least path through each candidate: the passes' paths that end there, the
+            // candidate's own cost counted once.
             let through: Vec<f64> = (0..c.len())
                 .map(|j| ahead.total[k][j] + behind.total[n - 1 - k][j] - cost(&c[j]))
                 .collect();
@@ -406,6 +409,7 @@ fn chain(levels: &[(f64, &[Candidate])], apart: f64) -> Vec<Option<Link>> {
         .collect()
 }
 
+/// A candidate's cost on the chain: the log of its misfit.
 fn cost(c: &Candidate) -> f64 {
     c.1.max(1e-300).ln()
 }
