@@ -33,11 +33,12 @@ impl Reading {
             .abs()
     }
 
-    /// The levels a profile is read on: bent forward for the scoliometer, else standing.
-    fn levels(&self, profile: &str) -> &[Level] {
-        match profile {
-            "scoliometer" => &self.bent.levels,
-            _ => &self.upright.levels,
+    /// The analysis bent forward or standing.
+    fn pose(&self, bent: bool) -> &BackAnalysis {
+        if bent {
+            &self.bent
+        } else {
+            &self.upright
         }
     }
 
@@ -220,19 +221,24 @@ fn at(levels: &[Level], y: f64, field: Field) -> Option<(f64, f64)> {
 /// patient 10 (a second axis 45 mm aside over its upper back) was at 2.05 and its scoliometer
 /// (two axes over 17 levels, the lattice taking either) at 7.3.
 fn agree_within_sigma(placed: &[Vec<Reading>]) {
-    let fields: [(&str, Field); 3] = [
-        ("symmetry line", |l| {
+    // Each profile: its name, whether it is read bent forward, its field.
+    let fields: [(&str, bool, Field); 3] = [
+        ("symmetry line", false, |l| {
             Some((l.symmetry_x, l.symmetry_x_sigma))
         }),
-        ("rotation", |l| Some((l.rotation_deg, l.rotation_sigma_deg))),
-        ("scoliometer", |l| Some((l.atr_deg?, l.atr_sigma_deg?))),
+        ("rotation", false, |l| {
+            Some((l.rotation_deg, l.rotation_sigma_deg))
+        }),
+        ("scoliometer", true, |l| {
+            Some((l.atr_deg?, l.atr_sigma_deg?))
+        }),
     ];
     for (i, patient) in placed[0].iter().enumerate() {
-        for (name, field) in fields {
+        for (name, bent, field) in fields {
             let (mut sum, mut n) = (0.0, 0);
             for (a, ra) in placed.iter().enumerate() {
                 for rb in &placed[a + 1..] {
-                    let (la, lb) = (ra[i].levels(name), rb[i].levels(name));
+                    let (la, lb) = (&ra[i].pose(bent).levels, &rb[i].pose(bent).levels);
                     for l in la {
                         let (Some((va, sa)), Some((vb, sb))) = (field(l), at(lb, l.y, field))
                         else {

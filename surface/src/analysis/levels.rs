@@ -117,20 +117,20 @@ pub(super) struct LevelVars {
 impl LevelVars {
     /// This level's values where the symmetry point may as well be `rival`'s ([`Var::or`]).
     fn or(self, rival: LevelVars) -> Self {
-        let both = |p: Option<Var>, q: Option<Var>| match (p, q) {
-            (Some(p), Some(q)) => Some(p.or(&q)),
-            (p, _) => p,
+        // A value the rival's level lacks (its window not measured) stays as it is.
+        let or = |p: Var, q: Option<&Var>| match q {
+            Some(q) => p.or(q),
+            None => p,
         };
         Self {
             x: self.x.or(&rival.x),
             depth: self.depth.or(&rival.depth),
             rotation: self.rotation.or(&rival.rotation),
             sagittal: self.sagittal.or(&rival.sagittal),
-            skin: both(self.skin, rival.skin),
-            atr: match (self.atr, rival.atr) {
-                (Some((p, window)), Some((q, _))) => Some((p.or(&q), window)),
-                (p, _) => p,
-            },
+            skin: self.skin.map(|p| or(p, rival.skin.as_ref())),
+            atr: self
+                .atr
+                .map(|(p, w)| (or(p, rival.atr.as_ref().map(|a| &a.0)), w)),
             rival_x: Some(rival.x.value),
             ..self
         }
@@ -378,8 +378,6 @@ struct Link {
 /// two passes' min-marginals), the least at a local minimum over the level's candidates more
 /// than `apart` from the path's, if it is within [`AMBIGUOUS`] of the path (a second mirror
 /// axis the chain cannot tell from the first). `None` where a level is left out.
-/// (On the real backs a level the chain would as well leave out, by the same margin, is common
-/// well inside the line: leaving those out kept as few as 9 levels of a scan.)
 fn chain(levels: &[(f64, &[Candidate])], apart: f64) -> Vec<Option<Link>> {
     let ahead = Pass::run(levels.iter().copied());
     let behind = Pass::run(levels.iter().rev().copied());

@@ -32,13 +32,17 @@ fn section(s: f64, y: f64, scale: f64) -> (f64, f64) {
 
 /// The surface's z at (x, y): Newton on s.
 fn depth(x: f64, y: f64, scale: f64) -> f64 {
+    z_at(x, |s| section(s, y, scale))
+}
+
+/// The z of a section given as (x, z) at arc length s, at x: Newton on s.
+fn z_at(x: f64, section: impl Fn(f64) -> (f64, f64)) -> f64 {
     let mut s = x;
     for _ in 0..40 {
-        let (a, _) = section(s, y, scale);
-        let (b, _) = section(s + 1e-4, y, scale);
+        let (a, b) = (section(s).0, section(s + 1e-4).0);
         s -= (a - x) / ((b - a) / 1e-4);
     }
-    section(s, y, scale).1
+    section(s).1
 }
 
 /// A scan: a 15 mm lattice over ±150 × ±250 mm, σ 0.3 mm in z, a common shift of σ 0.2 mm.
@@ -317,23 +321,16 @@ fn two_mirror_axes_make_the_line_ambiguous() {
         (-30.0, -1.5, 4.0),
         (45.0, 3.0, 6.0),
     ];
-    let surface = |x: f64, _y: f64| {
-        // (x, z) at arc length s, then Newton on s for x.
-        let at = |s: f64| {
-            let depth: f64 = grooves
-                .iter()
-                .map(|(c, d, w)| d * (-0.5 * ((s - c) / w).powi(2)).exp())
-                .sum();
-            let (sin, cos) = (s / R).sin_cos();
-            (R * sin - depth * sin, -1400.0 - R + R * cos - depth * cos)
-        };
-        let mut s = x;
-        for _ in 0..40 {
-            let (a, b) = (at(s).0, at(s + 1e-4).0);
-            s -= (a - x) / ((b - a) / 1e-4);
-        }
-        at(s).1
+    // (x, z) at arc length s.
+    let section = |s: f64| {
+        let depth: f64 = grooves
+            .iter()
+            .map(|(c, d, w)| d * (-0.5 * ((s - c) / w).powi(2)).exp())
+            .sum();
+        let (sin, cos) = (s / R).sin_cos();
+        (R * sin - depth * sin, -1400.0 - R + R * cos - depth * cos)
     };
+    let surface = |x: f64, _y: f64| z_at(x, section);
     let analysed = |seed: u64| {
         let frame = sampled(surface, seed, 0.3, 15.0);
         analyse(&[frame], &Options::standing()).unwrap()
