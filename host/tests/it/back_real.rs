@@ -108,15 +108,17 @@ fn fewest_levels(readings: &[Reading]) -> usize {
 }
 
 /// r(largest rotation, Cobb), r(scoliometer, Cobb) and r(largest asymmetry, Cobb) on
-/// `lattice`, printed, with the floors every lattice holds: 15 levels or more on every scan,
-/// r(rotation) ≥ 0.6 and r(asymmetry) ≥ 0.8.
+/// `lattice`, printed, with the floors every lattice holds: 14 levels or more on every scan,
+/// r(rotation) ≥ 0.6 and r(asymmetry) ≥ 0.8. (Patient 10's upright scan keeps 14 on two
+/// placements: the trunk's left side is out of view over 140 mm above its lowest level, which
+/// is then a lone level and left out.)
 fn correlations(readings: &[Reading], lattice: Lattice) -> [f64; 3] {
     let measures: [fn(&Reading) -> f64; 3] =
         [Reading::rotation, Reading::scoliometer, Reading::asymmetry];
     let [rotation, atr, asymmetry] = measures.map(|f| r(readings, f));
     let fewest = fewest_levels(readings);
     eprintln!("{lattice:?}, {} patients: fewest levels {fewest}, r(largest rotation, Cobb) = {rotation:.3}, r(scoliometer, Cobb) = {atr:.3}, r(largest asymmetry, Cobb) = {asymmetry:.3}", readings.len());
-    assert!(fewest >= 15, "{lattice:?}: {fewest} levels");
+    assert!(fewest >= 14, "{lattice:?}: {fewest} levels");
     assert!(
         rotation >= 0.6,
         "{lattice:?}: r(largest rotation, Cobb) = {rotation:.3}"
@@ -128,7 +130,7 @@ fn correlations(readings: &[Reading], lattice: Lattice) -> [f64; 3] {
     [rotation, atr, asymmetry]
 }
 
-// On the aligned lattice, rotation measured 0.679 and the scoliometer 0.691 at 15 mm: below the
+// On the aligned lattice, rotation measured 0.680 and the scoliometer 0.705 at 15 mm: below the
 // issue's 0.75. Removing the trunk's turn about the vertical (the mean or a linear fit of the
 // rotation over the levels, the whole back's best plane or quadric, the width line at the
 // pelvis, the shoulders or their mean) lowers r to 0.52-0.69: that turn itself follows the
@@ -163,17 +165,18 @@ fn real_backs_against_cobb() {
 }
 
 /// Where the dots fall on a back is chance: shifted by half a spacing or turned by 7°, the
-/// lattice still gives every scan 15 levels or more, and the correlations move by what the
+/// lattice still gives every scan 14 levels or more, and the correlations move by what the
 /// lattice's sampling of ten backs allows. Measured (rotation, scoliometer, asymmetry):
-/// aligned 0.68/0.69/0.90; these four 0.66-0.70, 0.55-0.69, 0.87-0.90. The rotation's and the
+/// aligned 0.68/0.71/0.90; these four 0.66-0.72, 0.62-0.71, 0.90-0.91. The rotation's and the
 /// asymmetry's floors hold on each, and each back's largest asymmetry keeps its sign (the
 /// side nearer the camera) on every placement. Bent forward, the lumbar sections of some
 /// backs are convex arcs with two mirror axes, and the lattice decides which one the line
 /// takes: those levels say so, and their σ holds both ([`agree_within_sigma`]). The
-/// scoliometer's r is reported, not asserted: its largest reading still moves with the
-/// lattice where a lone level at the line's end, across a level left out, holds it (patient 7
-/// reads +4.9 ± 2.1° aligned and −11.2 ± 0.6° on the turned lattice, patient 2 +14.2 and
-/// −9.0°).
+/// scoliometer's r is reported, not asserted, and so is each back's largest reading on each
+/// placement: a lone level at the line's end, which moved one back's from +4.9 ± 2.1° to
+/// −11.2 ± 0.6°, is left out now (its five readings −4.0 to −5.7°), but where the top of the
+/// line is ambiguous on some placements and not flagged on others the largest still moves
+/// (patient 2: +14.2 ± 0.4° or −9.0 ± 0.6°, the thoracic levels' reading or the lumbar ones').
 #[test]
 fn real_backs_wherever_the_lattice_falls() {
     let Some(dir) = folder() else { return };
@@ -199,6 +202,21 @@ fn real_backs_wherever_the_lattice_falls() {
         placed.push(patients);
     }
     agree_within_sigma(&placed);
+    for (i, patient) in placed[0].iter().enumerate() {
+        let largest: Vec<String> = placed
+            .iter()
+            .map(|p| {
+                let bent = &p[i].bent;
+                let (atr, sigma) = (bent.atr_max_deg.unwrap(), bent.atr_max_deg_sigma.unwrap());
+                format!("{atr:+.1} ± {sigma:.1}°")
+            })
+            .collect();
+        eprintln!(
+            "{}: largest scoliometer reading per placement {}",
+            patient.name,
+            largest.join(", ")
+        );
+    }
 }
 
 /// A level's value and σ, where it has one.
