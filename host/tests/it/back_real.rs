@@ -1,12 +1,13 @@
 //! The real scoliotic backs (ten patients, upright and bent forward; see
 //! `back_real_data`), thinned to 15 mm as a dot pattern would see them: every scan analysed,
 //! the largest surface rotation (upright) and the virtual scoliometer (bent forward) against
-//! the radiographic Cobb angle, on the aligned lattice and wherever else it may fall. Without
-//! the data folder it skips visibly ([`deltaz_testkit::require`]).
+//! the radiographic Cobb angle, on the aligned lattice and wherever else it may fall, and the
+//! rotation against the dense scans' own. Without the data folder it skips visibly
+//! ([`deltaz_testkit::require`]).
 
 use crate::back_real_data::{cobb_angles, correlation, folder, read_ply, thinned, Lattice};
 use deltaz_surface::{analyse, BackAnalysis, Level, Options};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use std::path::{Path, PathBuf};
 
 const SPACING: f64 = 15.0;
@@ -162,6 +163,71 @@ fn real_backs_against_cobb() {
     assert_eq!(patients.len(), 10);
     let [_, atr, _] = correlations(&patients, lattice);
     assert!(atr >= 0.6, "r(scoliometer, Cobb) = {atr:.3}");
+}
+
+/// The surface rotation at 15 mm against the dense scan's own (40,000-55,000 points 1.5 mm
+/// apart): at each level, the slope at the symmetry point of the quadratic fitted to the dense
+/// points within 3 mm of the level and the symmetry window of the point. The two estimators
+/// differ where the window is not symmetric (the mirror axis' tilt against a slope); measured,
+/// per patient, 0.19-0.64° RMS over the levels, 2.0° at worst, and the largest rotations within
+/// 1.2°. The dense scans' largest rotation correlates with the Cobb angle at 0.687 (the thinned
+/// scans' at 0.680): below the issue's 0.75 is the surface at the line, not the dot pattern.
+#[test]
+fn real_backs_rotation_against_the_dense_scans() {
+    let Some(dir) = folder() else { return };
+    let scans = patients(&dir);
+    let readings = readings(&scans, Lattice::default());
+    let mut largest = Vec::new();
+    for (scan, reading) in scans.iter().zip(&readings) {
+        let a = &reading.upright;
+        let window = a.symmetry_window_mm;
+        let dense: Vec<f64> = a
+            .levels
+            .iter()
+            .map(|l| dense_rotation(&scan.upright.1, l, window))
+            .collect();
+        let diff: Vec<f64> = a
+            .levels
+            .iter()
+            .zip(&dense)
+            .map(|(l, d)| l.rotation_deg - d)
+            .collect();
+        let rms = (diff.iter().map(|d| d * d).sum::<f64>() / diff.len() as f64).sqrt();
+        let worst = diff.iter().fold(0.0_f64, |m, d| m.max(d.abs()));
+        let dense_max = dense.iter().fold(0.0_f64, |m, d| m.max(d.abs()));
+        let thinned_max = a.rotation_max_deg.abs();
+        eprintln!(
+            "{}: rotation against the dense scan {rms:.2}° RMS, {worst:.2}° at worst; \
+             largest {thinned_max:.1}°, dense {dense_max:.1}°",
+            reading.name
+        );
+        assert!(rms < 1.0 && worst < 2.5, "{}", reading.name);
+        assert!((thinned_max - dense_max).abs() < 1.5, "{}", reading.name);
+        largest.push(dense_max);
+    }
+    let cobb: Vec<f64> = readings.iter().map(|p| p.cobb).collect();
+    let r = correlation(&largest, &cobb);
+    eprintln!("r(the dense scans' largest rotation, Cobb) = {r:.3}");
+}
+
+/// The slope (degrees) at `level`'s symmetry point of the quadratic in x fitted to the dense
+/// `points` within 3 mm of the level and `window` of the point (camera system: standing, the
+/// analysis axes are the camera's).
+fn dense_rotation(points: &[Vector3<f64>], level: &Level, window: f64) -> f64 {
+    let near =
+        |p: &&Vector3<f64>| (p.y - level.y).abs() < 3.0 && (p.x - level.symmetry_x).abs() < window;
+    let (mut normal, mut rhs) = (Matrix3::zeros(), Vector3::zeros());
+    for p in points.iter().filter(near) {
+        let d = p.x - level.symmetry_x;
+        let row = Vector3::new(1.0, d, d * d);
+        normal += row * row.transpose();
+        rhs += row * p.z;
+    }
+    let c = normal
+        .lu()
+        .solve(&rhs)
+        .expect("a level's dense strip fits a quadratic");
+    c[1].atan().to_degrees()
 }
 
 /// Where the dots fall on a back is chance: shifted by half a spacing or turned by 7°, the
