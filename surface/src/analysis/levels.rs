@@ -170,7 +170,7 @@ impl Measured<'_> {
 
     pub(super) fn analyse(&self, spacing: f64) -> Result<BackAnalysis, SurfaceError> {
         let (runs, width) = self.levels(spacing)?;
-        let found = chained(self.symmetry_line(&runs, width), spacing);
+        let found = self.symmetry_line(&runs, width, spacing);
         if found.len() < 3 {
             return Err(SurfaceError::NoLevels);
         }
@@ -230,9 +230,9 @@ impl Measured<'_> {
     /// A level whose path ends its searched range is left out: its symmetry point may lie
     /// beyond, where the window does not fit the measured run. So is a level the path passes
     /// by ([`SKIP`]): one whose run the trunk's outline cuts short, seen through a turned
-    /// lattice, holds candidates far from the line only. A level these leave alone is left out
-    /// after them ([`chained`]).
-    fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64) -> Vec<Found> {
+    /// lattice, holds candidates far from the line only. A level these leave alone (`spacing`
+    /// apart) is left out after them ([`chained`]).
+    fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64, spacing: f64) -> Vec<Found> {
         let w = width / 4.0;
         let margin = self.fit.grid.step;
         let searched: Vec<_> = runs
@@ -254,7 +254,7 @@ impl Measured<'_> {
                 .collect::<Vec<_>>(),
             margin,
         );
-        searched
+        let found = searched
             .iter()
             .zip(path)
             .filter_map(|((v, run, candidates), link)| {
@@ -279,7 +279,8 @@ impl Measured<'_> {
                     run: *run,
                 })
             })
-            .collect()
+            .collect();
+        chained(found, spacing)
     }
 
     fn level(

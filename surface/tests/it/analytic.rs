@@ -394,11 +394,8 @@ fn a_lone_level_is_left_out() {
             a.levels.len()
         );
         for (k, l) in a.levels.iter().enumerate() {
-            let gap = |j: Option<usize>| j.and_then(|j| a.levels.get(j)).map(|m| (m.y - l.y).abs());
-            let nearest = gap(k.checked_sub(1))
-                .into_iter()
-                .chain(gap(Some(k + 1)))
-                .fold(f64::INFINITY, f64::min);
+            let others = a.levels.iter().enumerate().filter(|&(j, _)| j != k);
+            let nearest = others.fold(f64::INFINITY, |d, (_, m)| d.min((m.y - l.y).abs()));
             assert!(
                 nearest < 1.5 * a.spacing_mm,
                 "seed {seed}, y {:.0}: alone, {nearest:.0} mm from the next level",
