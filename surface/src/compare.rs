@@ -13,6 +13,13 @@
 //! two levels of opposite sign are within the noise of each other (a double curve) which one
 //! it is, and so its sign, is chance: compared signed, two scans of one back then differ by
 //! twice the value, far beyond its σ.
+//!
+//! The surface is smoothed over a length that follows the dot spacing (its knots are a spacing
+//! apart), so two analyses whose spacings differ (the subject nearer or farther from the
+//! projector) measure the back at different scales: on the real backs, the same points
+//! analysed with a smoothing a third longer (15 against 20 mm spacing) move the symmetry line
+//! of 8 scans of 20 by an RMS of 1.0-2.5 σ of the change, one a tenth longer only one by more
+//! than 1 σ. [`Comparison::scales_differ`] says so beyond [`SCALE_TOLERANCE`].
 
 use crate::analysis::{BackAnalysis, Level};
 use serde::{Deserialize, Serialize};
@@ -56,10 +63,19 @@ pub struct Comparison {
     pub indices: Vec<Change>,
     /// The profiles' changes at the levels both cover.
     pub levels: Vec<LevelChange>,
+    /// The two analyses' dot spacings (mm), before and after.
+    pub spacings_mm: [f64; 2],
+    /// Whether the spacings differ by more than [`SCALE_TOLERANCE`]: the changes then hold
+    /// the difference of scale too, beyond their σ.
+    pub scales_differ: bool,
 }
 
 /// The threshold of [`compare`].
 pub const THRESHOLD: f64 = 1.96;
+
+/// The share by which two analyses' dot spacings may differ and still be compared like for
+/// like.
+pub const SCALE_TOLERANCE: f64 = 0.1;
 
 fn change(name: &str, before: (f64, f64), after: (f64, f64)) -> Change {
     let (d, sigma) = (after.0 - before.0, before.1.hypot(after.1));
@@ -151,9 +167,12 @@ pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
             })
         })
         .collect();
+    let spacings_mm = [before.spacing_mm, after.spacing_mm];
     Comparison {
         threshold: THRESHOLD,
         indices,
         levels,
+        spacings_mm,
+        scales_differ: (spacings_mm[1] / spacings_mm[0] - 1.0).abs() > SCALE_TOLERANCE,
     }
 }

@@ -120,16 +120,25 @@ pub fn exec(what: What) -> Result<()> {
             after,
             output,
         } => {
+            let output = Output::from(output);
             let (a, b) = (read_report(&before)?, read_report(&after)?);
             if a.fingerprint.is_some() && b.fingerprint.is_some() && a.fingerprint != b.fingerprint
             {
-                Output::from(output).status(format!(
+                output.status(format!(
                     "note: measured with two calibrations ({} and {})",
                     a.fingerprint.as_deref().unwrap_or_default(),
                     b.fingerprint.as_deref().unwrap_or_default()
                 ));
             }
             let c = compare(&a.analysis, &b.analysis);
+            if c.scales_differ {
+                output.status(format!(
+                    "note: the dots lay {:.1} and {:.1} mm apart on the back: the surface is \
+                     smoothed over a length that follows the spacing, so the changes also hold \
+                     that difference of scale, beyond their σ (scan at the same distance)",
+                    c.spacings_mm[0], c.spacings_mm[1]
+                ));
+            }
             let mut text = format!(
                 "changes from {} to {} (beyond {:.2} σ: exceeds the measurement noise):\n",
                 before.display(),
@@ -160,7 +169,7 @@ pub fn exec(what: What) -> Result<()> {
                 "  surface rotation: {beyond} of {} levels changed beyond the noise\n",
                 c.levels.len()
             );
-            Output::from(output).result(&text, &serde_json::to_value(&c)?)
+            output.result(&text, &serde_json::to_value(&c)?)
         }
     }
 }

@@ -14,12 +14,18 @@ use std::process::Output;
 
 const SIGMA: f64 = 0.4;
 
-/// A cloud of `model` as a deltaz PLY (camera system, each point's σ, ray ids by lattice node).
+/// A cloud of `model` as a deltaz PLY (camera system, each point's σ, ray ids by lattice node),
+/// its dots 20 mm apart.
 fn write_cloud(path: &Path, model: &BackModel, frame: &str, seed: u64) {
+    write_cloud_at(path, model, frame, seed, 20.0);
+}
+
+/// One with its dots `spacing` apart.
+fn write_cloud_at(path: &Path, model: &BackModel, frame: &str, seed: u64, spacing: f64) {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, SIGMA).unwrap();
     let points: Vec<ReconstructedPoint> = model
-        .sample(&Lattice::beside_camera(20.0))
+        .sample(&Lattice::beside_camera(spacing))
         .iter()
         .map(|d| {
             let [i, j] = d.ray;
@@ -145,6 +151,33 @@ fn analyse_back_writes_its_report_and_compares() {
         "{flagged} of {}",
         indices.len()
     );
+    assert_eq!(c["scales_differ"], false, "{}", c["spacings_mm"]);
+    // The same back with its dots 15 mm apart (the subject nearer): measured at another scale,
+    // and the comparison says so.
+    write_cloud_at(&d.join("n0.ply"), &model, "the camera system", 5, 15.0);
+    json(&deltaz_in(
+        d,
+        &[
+            "analyse", "back", "--cloud", "n0.ply", "--out", "n", "--json",
+        ],
+    ));
+    let nearer = deltaz_in(
+        d,
+        &[
+            "analyse",
+            "compare",
+            "a/analysis.json",
+            "n/analysis.json",
+            "--json",
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&nearer.stderr).into_owned();
+    let c = json(&nearer);
+    assert_eq!(c["scales_differ"], true, "{}", c["spacings_mm"]);
+    let spacings = c["spacings_mm"].as_array().unwrap();
+    let spacing = |k: usize| spacings[k].as_f64().unwrap();
+    assert!((spacing(0) - 20.0).abs() < 1.0 && (spacing(1) - 15.0).abs() < 1.0);
+    assert!(stderr.contains("difference of scale"), "{stderr}");
     // A back with another deformity: its rotation changed beyond the noise.
     write_cloud(
         &d.join("h0.ply"),

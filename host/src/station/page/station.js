@@ -195,7 +195,9 @@ $('compare-form').addEventListener('submit', async (e) => {
     }
     const beyond = c.levels.filter((l) => l.rotation_deg.exceeds_noise).length;
     setText('compare-message', `${c.before} → ${c.after}: surface rotation changed beyond the noise `
-      + `(${fixed(c.threshold, 2)} σ) at ${beyond} of ${c.levels.length} levels`, true);
+      + `(${fixed(c.threshold, 2)} σ) at ${beyond} of ${c.levels.length} levels`
+      + (c.scales_differ ? `; the dots lay ${fixed(c.spacings_mm[0], 1)} and ${fixed(c.spacings_mm[1], 1)} mm `
+        + 'apart: the changes also hold that difference of scale (scan at the same distance)' : ''), true);
   } catch (error) {
     setText('compare-message', `no comparison: ${error.message}`, false);
   }
