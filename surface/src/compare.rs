@@ -73,8 +73,8 @@ pub struct Comparison {
 /// The threshold of [`compare`].
 pub const THRESHOLD: f64 = 1.96;
 
-/// The share by which two analyses' dot spacings may differ and still be compared like for
-/// like.
+/// The share by which the larger of two analyses' dot spacings may exceed the smaller and the
+/// two still be compared like for like.
 pub const SCALE_TOLERANCE: f64 = 0.1;
 
 fn change(name: &str, before: (f64, f64), after: (f64, f64)) -> Change {
@@ -173,6 +173,8 @@ pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
         indices,
         levels,
         spacings_mm,
-        scales_differ: (spacings_mm[1] / spacings_mm[0] - 1.0).abs() > SCALE_TOLERANCE,
+        scales_differ: spacings_mm[0].max(spacings_mm[1]) / spacings_mm[0].min(spacings_mm[1])
+            - 1.0
+            > SCALE_TOLERANCE,
     }
 }
