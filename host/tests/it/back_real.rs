@@ -204,34 +204,39 @@ fn rotation_against_the_dense_scans(scans: &[Patient], readings: &[Reading]) {
 
 /// The upright analyses at 15 mm against the same backs thinned to 7.5 mm on the same lattice,
 /// the surface smoothed over the same length (`Options::smoothing` is in dot spacings): at
-/// each level, the symmetry line and the rotation of the nearest denser level (within 4 mm)
-/// differ from the 15 mm analysis' by what its σ states, on real skin. Measured, per patient,
-/// RMS of difference/σ (the 15 mm σ) 0.18-1.24 for the line (0.7-1.3 mm RMS; 6.6 mm on patient
-/// 10, whose top levels are ambiguous, their σ holding both axes) and 0.27-1.22 for the
-/// rotation (0.09-1.1° RMS); asserted under 1.5, on at least three levels in four. Each
-/// smoothed over its own spacing, the two differ beyond σ on three backs (line up to 4.6,
-/// rotation up to 4.6): the scale follows the spacing ([`deltaz_surface::compare`]).
+/// each level, the symmetry line and the rotation differ from the denser analysis' (between
+/// its two levels about it, [`at`]) by what the 15 mm σ states, on real skin. Measured, per
+/// patient, RMS of difference/σ 0.15-1.13 for the line (0.5-1.3 mm RMS; 6.5 mm on patient 10,
+/// whose top levels are ambiguous, their σ holding both axes) and 0.22-1.25 for the rotation
+/// (0.07-1.1° RMS); asserted under 1.5, on at least three levels in four. Each smoothed over
+/// its own spacing, the two differ beyond σ on three backs (line up to 4.6, rotation up to
+/// 4.6): the scale follows the spacing ([`deltaz_surface::compare`]).
 fn against_a_denser_pattern(scans: &[Patient], readings: &[Reading]) {
+    let denser_by = 2.0;
     let options = Options {
-        smoothing: 2.0 * Options::standing().smoothing,
+        smoothing: denser_by * Options::standing().smoothing,
         ..Options::standing()
     };
     for (scan, reading) in scans.iter().zip(readings) {
-        let thinned = thinned(&scan.upright.1, SPACING / 2.0, Lattice::default(), SIGMA);
+        let thinned = thinned(
+            &scan.upright.1,
+            SPACING / denser_by,
+            Lattice::default(),
+            SIGMA,
+        );
         let denser = analyse(&[thinned], &options)
             .unwrap_or_else(|e| panic!("{} at 7.5 mm: {e}", scan.upright.0.display()));
-        let (mut line, mut rotation) = (Errors::default(), Errors::default());
-        for l in &reading.upright.levels {
-            let nearest = denser
-                .levels
-                .iter()
-                .min_by(|p, q| (p.y - l.y).abs().total_cmp(&(q.y - l.y).abs()))
-                .filter(|d| (d.y - l.y).abs() < 4.0);
-            if let Some(d) = nearest {
-                line.push(l.symmetry_x - d.symmetry_x, l.symmetry_x_sigma);
-                rotation.push(l.rotation_deg - d.rotation_deg, l.rotation_sigma_deg);
+        let [line, rotation] = [LINE, ROTATION].map(|field| {
+            let mut errors = Errors::default();
+            for l in &reading.upright.levels {
+                if let (Some((value, sigma)), Some((reference, _))) =
+                    (field(l), at(&denser.levels, l.y, field))
+                {
+                    errors.push(value - reference, sigma);
+                }
             }
-        }
+            errors
+        });
         eprintln!(
             "{}: against 7.5 mm, {} levels: line {:.2} mm RMS (difference/σ {:.2}), rotation \
              {:.2}° ({:.2})",
@@ -329,6 +334,11 @@ fn real_backs_wherever_the_lattice_falls() {
 /// A level's value and σ, where it has one.
 type Field = fn(&Level) -> Option<(f64, f64)>;
 
+/// The symmetry line's field.
+const LINE: Field = |l| Some((l.symmetry_x, l.symmetry_x_sigma));
+/// The surface rotation's.
+const ROTATION: Field = |l| Some((l.rotation_deg, l.rotation_sigma_deg));
+
 /// The value of `field` at level y, linear between the two levels about it (None beyond the
 /// ends, across a level left out, or where either has no value).
 fn at(levels: &[Level], y: f64, field: Field) -> Option<(f64, f64)> {
@@ -348,12 +358,8 @@ fn at(levels: &[Level], y: f64, field: Field) -> Option<(f64, f64)> {
 fn agree_within_sigma(placed: &[Vec<Reading>]) {
     // Each profile: its name, whether it is read bent forward, its field.
     let fields: [(&str, bool, Field); 3] = [
-        ("symmetry line", false, |l| {
-            Some((l.symmetry_x, l.symmetry_x_sigma))
-        }),
-        ("rotation", false, |l| {
-            Some((l.rotation_deg, l.rotation_sigma_deg))
-        }),
+        ("symmetry line", false, LINE),
+        ("rotation", false, ROTATION),
         ("scoliometer", true, |l| {
             Some((l.atr_deg?, l.atr_sigma_deg?))
         }),
