@@ -322,6 +322,12 @@ impl Fit {
             .collect()
     }
 
+    /// The covariance of the quantities whose gradients are `grads`.
+    pub fn covariance(&self, grads: &[DVector<f64>]) -> DMatrix<f64> {
+        let (y, u) = self.spread(grads);
+        y.transpose() * &y + u.transpose() * &self.common * &u
+    }
+
     /// The σ of the quantities whose gradients are `grads`, each with an independent term
     /// (σ) of its own in `sampling` added in quadrature.
     pub fn sigmas(&self, grads: &[DVector<f64>], sampling: &[f64]) -> Vec<f64> {

@@ -16,16 +16,19 @@ const SPACING: f64 = 20.0;
 
 fn report(what: &str, e: &IndexErrors) {
     eprintln!(
-        "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}°, \
-         ATR {:.3}° ({:.2}), largest ATR {:.3}°",
+        "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}° \
+         (its error {:.3}°, {:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2})",
         e.symmetry_x.rms(),
         e.symmetry_x.z(),
         e.rotation.rms(),
         e.rotation.z(),
         e.largest_rotation.iter().fold(0.0_f64, |m, x| m.max(*x)),
+        e.rotation_max.rms(),
+        e.rotation_max.z(),
         e.atr.rms(),
         e.atr.z(),
         e.atr_max.rms(),
+        e.atr_max.z(),
     );
 }
 
@@ -96,6 +99,8 @@ fn child_trunk() -> Trunk {
     }
 }
 
+/// A straight back: its largest rotation is the largest of its profile's noise, 2 of its
+/// level's σ from the truth; its σ holds that choice (deltaz-surface's `selection`).
 #[test]
 fn straight_back_standing() {
     let e = standing(Deformity::straight(), Trunk::default(), 1000);
@@ -104,6 +109,11 @@ fn straight_back_standing() {
     assert!(
         largest <= 1.0,
         "a straight back's largest |rotation| {largest:.2}°"
+    );
+    let z = e.rotation_max.z();
+    assert!(
+        (0.8..=1.25).contains(&z),
+        "straight: largest rotation's RMS of error/σ {z:.2}"
     );
 }
 
@@ -164,7 +174,8 @@ fn second_trunk_double_curve() {
 
 /// Bent forward, the virtual scoliometer within 0.5° of the true surface's (per level and, on
 /// a curve, its largest reading; on a straight back the largest reading is the noise's
-/// largest, held to 1° as the rotation's).
+/// largest, held to 1° as the rotation's), its σ holding its error (the largest reading's too:
+/// on a straight back its σ holds the choice among the levels' noise).
 fn forward_bent(deformity: Deformity, seed: u64) {
     let name = deformity.name;
     let straight = deformity.curves.is_empty();
@@ -187,6 +198,11 @@ fn forward_bent(deformity: Deformity, seed: u64) {
         (0.8..=1.25).contains(&e.atr.z()),
         "{name}: ATR RMS of error/σ {:.2}",
         e.atr.z()
+    );
+    let z = e.atr_max.z();
+    assert!(
+        z <= 1.25 && (z >= 0.8 || !straight),
+        "{name}: largest ATR's RMS of error/σ {z:.2}"
     );
     assert!(
         e.rotation.rms() <= 0.5,

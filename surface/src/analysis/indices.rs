@@ -2,7 +2,7 @@
 //! lordosis, their largest and RMS values, all σ in one propagation) and the maps.
 
 use super::levels::{LevelVars, Measured, Var};
-use super::{Axes, BackAnalysis, Level, Map, Posture};
+use super::{selection, Axes, BackAnalysis, Level, Map, Posture};
 use crate::spline::D;
 use nalgebra::DVector;
 
@@ -48,7 +48,7 @@ impl Measured<'_> {
             .iter()
             .filter_map(|l| l.atr.as_ref().map(|a| &a.0))
             .collect();
-        let atr_max = (!atrs.is_empty()).then(|| largest(&atrs));
+        let atr_max = (!atrs.is_empty()).then(|| self.largest(&atrs));
         // Every σ in one propagation: per level x, depth, rotation, sagittal, deviation, skin, atr.
         let mut grads: Vec<DVector<f64>> = Vec::new();
         let mut sampling: Vec<f64> = Vec::new();
@@ -72,9 +72,9 @@ impl Measured<'_> {
                 ]
             })
             .collect();
-        let rot_max = largest(&rotations);
+        let rot_max = self.largest(&rotations);
         let rot_rms = rms(&rotations);
-        let dev_max = largest(&deviations);
+        let dev_max = self.largest(&deviations);
         let dev_rms = rms(&deviations);
         let scalars = [
             Some(&rot_max),
@@ -116,8 +116,8 @@ impl Measured<'_> {
             })
             .collect();
         let s = |i: usize| sd(scalar_slots[i]).unwrap_or(f64::NAN);
-        let (asymmetry, topography) = self.maps(&levels);
-        let asymmetry_max = self.largest_inside(&asymmetry, &levels);
+        let (asymmetry, topography, cells) = self.maps(&levels);
+        let asymmetry_max = self.largest_inside(&asymmetry, &cells, &levels);
         BackAnalysis {
             posture: self.posture,
             frames: 1,
@@ -162,8 +162,8 @@ impl Measured<'_> {
     }
 
     /// The mirror-asymmetry map (with σ) and the topography, one dot spacing apart across, at
-    /// the levels.
-    fn maps(&self, levels: &[LevelVars]) -> (Map, Map) {
+    /// the levels, with the gradients of the asymmetry map's measured cells in its order.
+    fn maps(&self, levels: &[LevelVars]) -> (Map, Map, Vec<DVector<f64>>) {
         let step = self.fit.grid.step;
         let (lo, hi) = levels
             .iter()
@@ -216,36 +216,70 @@ impl Measured<'_> {
                 values: depth,
                 sigmas: vec![None; cells],
             },
+            grads,
         )
     }
 
     /// The asymmetry map's value of largest magnitude (signed) on the +a side of the symmetry
     /// line (the map is odd about the line: its other side holds the same values negated)
-    /// with its σ and its cell (a, v), where the cell and its mirror image lie a grid step or
-    /// more inside the measured surface (at its edges the fit ends).
-    fn largest_inside(&self, map: &Map, levels: &[LevelVars]) -> Option<(f64, f64, [f64; 2])> {
+    /// with its σ (what choosing it among the cells adds included: [`selection`]) and its
+    /// cell (a, v), where the cell and its mirror image lie a grid step or more inside the
+    /// measured surface (at its edges the fit ends). `cells`: the gradients of the map's
+    /// measured cells.
+    fn largest_inside(
+        &self,
+        map: &Map,
+        cells: &[DVector<f64>],
+        levels: &[LevelVars],
+    ) -> Option<(f64, f64, [f64; 2])> {
         let na = map.a.len();
         let step = self.fit.grid.step;
-        let cells = map.values.iter().zip(&map.sigmas).enumerate();
-        cells
-            .filter(|(k, _)| {
+        // (map index, gradient, value, σ) of the cells inside.
+        let inside: Vec<(usize, &DVector<f64>, f64, f64)> = map
+            .values
+            .iter()
+            .zip(&map.sigmas)
+            .enumerate()
+            .filter_map(|(k, (v, s))| Some((k, v.as_ref()?, s.as_ref()?)))
+            .zip(cells)
+            .filter(|((k, _, _), _)| {
                 let (a, l) = (map.a[k % na], &levels[k / na]);
                 let mirror = 2.0 * l.x.value - a;
                 a > l.x.value && self.support.covers(mirror - step, a + step, l.v)
             })
-            .filter_map(|(k, (v, s))| Some((v.as_ref()?, s.as_ref()?, k)))
-            .max_by(|p, q| p.0.abs().total_cmp(&q.0.abs()))
-            .map(|(v, s, k)| (*v, *s, [map.a[k % na], levels[k / na].v]))
+            .map(|((k, v, s), cell)| (k, cell, *v, *s))
+            .collect();
+        let values: Vec<f64> = inside.iter().map(|c| c.2).collect();
+        let sigma: Vec<f64> = inside.iter().map(|c| c.3).collect();
+        let (j, added) = selection::largest(&values, &sigma, |at| {
+            let grads: Vec<DVector<f64>> = at.iter().map(|&i| inside[i].1.clone()).collect();
+            self.fit.covariance(&grads)
+        })?;
+        let k = inside[j].0;
+        Some((
+            values[j],
+            sigma[j].hypot(added),
+            [map.a[k % na], levels[k / na].v],
+        ))
     }
-}
 
-/// The value of largest magnitude (signed) with its gradient.
-fn largest(vars: &[&Var]) -> Var {
-    let best = vars
-        .iter()
-        .max_by(|p, q| p.value.abs().total_cmp(&q.value.abs()))
+    /// The value of largest magnitude (signed) with its gradient, its sampling term holding
+    /// what choosing it among the levels adds ([`selection`]).
+    fn largest(&self, vars: &[&Var]) -> Var {
+        let grads: Vec<DVector<f64>> = vars.iter().map(|v| v.gradient.clone()).collect();
+        let sampling: Vec<f64> = vars.iter().map(|v| v.sampling).collect();
+        let values: Vec<f64> = vars.iter().map(|v| v.value).collect();
+        let sigma = self.fit.sigmas(&grads, &sampling);
+        let (j, added) = selection::largest(&values, &sigma, |at| {
+            let g: Vec<DVector<f64>> = at.iter().map(|&k| grads[k].clone()).collect();
+            self.fit.covariance(&g)
+        })
         .expect("at least one level");
-    (*best).clone()
+        Var {
+            sampling: vars[j].sampling.hypot(added),
+            ..vars[j].clone()
+        }
+    }
 }
 
 /// The RMS with its gradient.

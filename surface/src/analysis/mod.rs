@@ -23,6 +23,7 @@
 mod back;
 mod indices;
 mod levels;
+mod selection;
 
 use crate::fit::{fit, Fit, Sample};
 use crate::input::{same_calibration, Frame};
@@ -207,9 +208,10 @@ pub struct BackAnalysis {
     /// The symmetry line, level by level (bottom to top).
     pub levels: Vec<Level>,
     /// The largest surface rotation (the signed value of largest magnitude). Its σ is its
-    /// level's, and describes its magnitude: where levels of opposite sign are within the noise
-    /// of each other, which one is the largest, and so the sign, is chance ([`crate::compare`]
-    /// compares magnitudes).
+    /// level's with what choosing it among levels within the noise of it adds (the analysis'
+    /// `selection`), and describes its magnitude: where levels of opposite sign are within the
+    /// noise of each other, which one is the largest, and so the sign, is chance
+    /// ([`crate::compare`] compares magnitudes).
     pub rotation_max_deg: f64,
     /// Its σ.
     pub rotation_max_deg_sigma: f64,
@@ -251,9 +253,9 @@ pub struct BackAnalysis {
     /// (standing, the subject's right), where it and its mirror image lie a grid step or more
     /// inside the measured surface (None when no cell does): positive where that side is nearer
     /// the camera than its mirror image (the map is odd about the line, so its other side holds
-    /// the same values negated, and the side fixes the sign). Its σ is
-    /// its cell's: the largest of many cells leans away from zero with their noise (by 1-3 σ
-    /// where the map is nearly flat).
+    /// the same values negated, and the side fixes the sign). Its σ is its cell's with what
+    /// choosing it among the cells adds: the largest of many cells leans away from zero with
+    /// their noise where the map is nearly flat (the analysis' `selection`).
     pub asymmetry_max_mm: Option<f64>,
     /// Its σ.
     pub asymmetry_max_mm_sigma: Option<f64>,
