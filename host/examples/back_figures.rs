@@ -37,11 +37,13 @@ fn main() {
             &Options::forward_bent(),
         );
         println!(
-            "{:9} symmetry x mm {} | rotation ° {} | largest rotation ° {} | skin angle ° {} | lateral deviation mm {} | imbalance mm {} | inclination ° {} | ATR ° {} | largest ATR ° {}",
+            "{:9} symmetry x mm {} | rotation ° {} | largest rotation ° {} | RMS rotation ° {} | RMS deviation mm {} | skin angle ° {} | lateral deviation mm {} | imbalance mm {} | inclination ° {} | ATR ° {} | largest ATR ° {}",
             d.name,
             cell(&standing.symmetry_x),
             cell(&standing.rotation),
             cell(&standing.rotation_max),
+            cell(&standing.rotation_rms),
+            cell(&standing.lateral_deviation_rms),
             cell(&standing.skin_angle),
             cell(&standing.lateral_deviation_max),
             cell(&standing.trunk_imbalance),

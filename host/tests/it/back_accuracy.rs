@@ -17,7 +17,7 @@ const SPACING: f64 = 20.0;
 fn report(what: &str, e: &IndexErrors) {
     eprintln!(
         "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}° \
-         (its error {:.3}°, {:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2})",
+         (its error {:.3}°, {:.2}), RMS rotation {:.3}° ({:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2})",
         e.symmetry_x.rms(),
         e.symmetry_x.z(),
         e.rotation.rms(),
@@ -25,6 +25,8 @@ fn report(what: &str, e: &IndexErrors) {
         e.largest_rotation.iter().fold(0.0_f64, |m, x| m.max(*x)),
         e.rotation_max.rms(),
         e.rotation_max.z(),
+        e.rotation_rms.rms(),
+        e.rotation_rms.z(),
         e.atr.rms(),
         e.atr.z(),
         e.atr_max.rms(),
@@ -100,7 +102,8 @@ fn child_trunk() -> Trunk {
 }
 
 /// A straight back: its largest rotation is the largest of its profile's noise, 2 of its
-/// level's σ from the truth; its σ holds that choice (deltaz-surface's `selection`).
+/// level's σ from the truth, and its RMS rotation mostly the noise's; their σ hold that
+/// (deltaz-surface's `selection` and the RMS's noise share).
 #[test]
 fn straight_back_standing() {
     let e = standing(Deformity::straight(), Trunk::default(), 1000);
@@ -114,6 +117,12 @@ fn straight_back_standing() {
     assert!(
         (0.8..=1.25).contains(&z),
         "straight: largest rotation's RMS of error/σ {z:.2}"
+    );
+    // The RMS rotation of a profile that is mostly noise (3.3 without the noise's share).
+    let z = e.rotation_rms.z();
+    assert!(
+        (0.8..=1.5).contains(&z),
+        "straight: RMS rotation's RMS of error/σ {z:.2}"
     );
 }
 

@@ -158,12 +158,14 @@ fn report(what: &str, e: &IndexErrors) {
         format!("{name} {:.3} {unit} ({:.2})", x.rms(), x.z())
     };
     eprintln!(
-        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°",
+        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°",
         line("symmetry x", &e.symmetry_x, "mm"),
         line("rotation", &e.rotation, "°"),
         line("skin angle", &e.skin_angle, "°"),
         line("largest rotation", &e.rotation_max, "°"),
         line("largest lateral deviation", &e.lateral_deviation_max, "mm"),
+        line("RMS rotation", &e.rotation_rms, "°"),
+        line("RMS lateral deviation", &e.lateral_deviation_rms, "mm"),
         line("trunk imbalance", &e.trunk_imbalance, "mm"),
         line("trunk inclination", &e.trunk_inclination, "°"),
         line("ATR", &e.atr, "°"),

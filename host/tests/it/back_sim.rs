@@ -169,6 +169,10 @@ pub struct IndexErrors {
     pub rotation_max: Errors,
     /// Largest lateral deviation (mm).
     pub lateral_deviation_max: Errors,
+    /// RMS of the rotation over the levels (°).
+    pub rotation_rms: Errors,
+    /// RMS of the lateral deviation (mm).
+    pub lateral_deviation_rms: Errors,
     /// Trunk imbalance (mm).
     pub trunk_imbalance: Errors,
     /// Trunk inclination (°).
@@ -226,10 +230,25 @@ impl IndexErrors {
             truth.push((l.y, x, n, rotation, atr));
         }
         let (first, last) = (truth[0], truth[truth.len() - 1]);
-        let deviation = truth.iter().map(|t| {
-            let f = (t.0 - first.0) / (last.0 - first.0);
-            t.1 - (1.0 - f) * first.1 - f * last.1
-        });
+        let deviation: Vec<f64> = truth
+            .iter()
+            .map(|t| {
+                let f = (t.0 - first.0) / (last.0 - first.0);
+                t.1 - (1.0 - f) * first.1 - f * last.1
+            })
+            .collect();
+        let rms = |v: &mut dyn Iterator<Item = f64>| {
+            let (sum, n) = v.fold((0.0, 0.0), |(s, n), x| (s + x * x, n + 1.0));
+            (sum / n).sqrt()
+        };
+        self.rotation_rms.push(
+            a.rotation_rms_deg - rms(&mut truth.iter().map(|t| t.3)),
+            a.rotation_rms_deg_sigma,
+        );
+        self.lateral_deviation_rms.push(
+            a.lateral_deviation_rms_mm - rms(&mut deviation.iter().copied()),
+            a.lateral_deviation_rms_mm_sigma,
+        );
         // The largest values as magnitudes: their sign is chance where two levels of opposite
         // sign are within the noise (deltaz_surface::compare).
         let magnitude = |measured: f64, truth: f64| measured.abs() - truth.abs();
@@ -238,7 +257,7 @@ impl IndexErrors {
             a.rotation_max_deg_sigma,
         );
         self.lateral_deviation_max.push(
-            magnitude(a.lateral_deviation_max_mm, largest(deviation)),
+            magnitude(a.lateral_deviation_max_mm, largest(deviation.into_iter())),
             a.lateral_deviation_max_mm_sigma,
         );
         self.trunk_imbalance.push(

@@ -73,9 +73,9 @@ impl Measured<'_> {
             })
             .collect();
         let rot_max = self.largest(&rotations);
-        let rot_rms = rms(&rotations);
+        let rot_rms = self.rms(&rotations);
         let dev_max = self.largest(&deviations);
-        let dev_rms = rms(&deviations);
+        let dev_rms = self.rms(&deviations);
         let scalars = [
             Some(&rot_max),
             Some(&rot_rms),
@@ -263,15 +263,19 @@ impl Measured<'_> {
         ))
     }
 
+    /// The σ of each of `vars`.
+    fn sigmas(&self, vars: &[&Var]) -> Vec<f64> {
+        let grads: Vec<DVector<f64>> = vars.iter().map(|v| v.gradient.clone()).collect();
+        let sampling: Vec<f64> = vars.iter().map(|v| v.sampling).collect();
+        self.fit.sigmas(&grads, &sampling)
+    }
+
     /// The value of largest magnitude (signed) with its gradient, its sampling term holding
     /// what choosing it among the levels adds ([`selection`]).
     fn largest(&self, vars: &[&Var]) -> Var {
-        let grads: Vec<DVector<f64>> = vars.iter().map(|v| v.gradient.clone()).collect();
-        let sampling: Vec<f64> = vars.iter().map(|v| v.sampling).collect();
         let values: Vec<f64> = vars.iter().map(|v| v.value).collect();
-        let sigma = self.fit.sigmas(&grads, &sampling);
-        let (j, added) = selection::largest(&values, &sigma, |at| {
-            let g: Vec<DVector<f64>> = at.iter().map(|&k| grads[k].clone()).collect();
+        let (j, added) = selection::largest(&values, &self.sigmas(vars), |at| {
+            let g: Vec<DVector<f64>> = at.iter().map(|&k| vars[k].gradient.clone()).collect();
             self.fit.covariance(&g)
         })
         .expect("at least one level");
@@ -280,18 +284,27 @@ impl Measured<'_> {
             ..vars[j].clone()
         }
     }
-}
 
-/// The RMS with its gradient.
-fn rms(vars: &[&Var]) -> Var {
-    let n = vars.len() as f64;
-    let value = (vars.iter().map(|v| v.value * v.value).sum::<f64>() / n).sqrt();
-    // d rms / d v_k = v_k / (n rms); all zero where every value is.
-    let c = if value > 0.0 { 1.0 / (n * value) } else { 0.0 };
-    let terms: Vec<(&Var, f64)> = vars.iter().map(|v| (*v, v.value * c)).collect();
-    Var {
-        value,
-        ..Var::sum(&terms)
+    /// The RMS with its gradient. The values' noise adds to their mean square (its expectation
+    /// is the truth's plus the mean of their variances), so the RMS leans away from the
+    /// truth's by rms − √(rms² − mean σ²): its sampling term holds that in quadrature. On a
+    /// straight back, whose profile is mostly noise, the RMS rotation was 0.26° off (20 mm, 30
+    /// draws), 3.3 times the σ its gradient gives.
+    fn rms(&self, vars: &[&Var]) -> Var {
+        let n = vars.len() as f64;
+        let value = (vars.iter().map(|v| v.value * v.value).sum::<f64>() / n).sqrt();
+        // d rms / d v_k = v_k / (n rms); all zero where every value is.
+        let c = if value > 0.0 { 1.0 / (n * value) } else { 0.0 };
+        let terms: Vec<(&Var, f64)> = vars.iter().map(|v| (*v, v.value * c)).collect();
+        let noise = self.sigmas(vars).iter().map(|s| s * s).sum::<f64>() / n;
+        let sum = Var::sum(&terms);
+        Var {
+            value,
+            sampling: sum
+                .sampling
+                .hypot(value - (value * value - noise).max(0.0).sqrt()),
+            ..sum
+        }
     }
 }
 

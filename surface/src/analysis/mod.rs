@@ -215,7 +215,8 @@ pub struct BackAnalysis {
     pub rotation_max_deg: f64,
     /// Its σ.
     pub rotation_max_deg_sigma: f64,
-    /// RMS of the surface rotation over the levels.
+    /// RMS of the surface rotation over the levels. The noise adds to it: its σ holds what it
+    /// adds, which where the profile is mostly noise (a straight back) is most of the value.
     pub rotation_rms_deg: f64,
     /// Its σ.
     pub rotation_rms_deg_sigma: f64,
@@ -224,7 +225,7 @@ pub struct BackAnalysis {
     pub lateral_deviation_max_mm: f64,
     /// Its σ.
     pub lateral_deviation_max_mm_sigma: f64,
-    /// RMS of the lateral deviation.
+    /// RMS of the lateral deviation (its σ holding what the noise adds, as the RMS rotation's).
     pub lateral_deviation_rms_mm: f64,
     /// Its σ.
     pub lateral_deviation_rms_mm_sigma: f64,
