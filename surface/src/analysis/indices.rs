@@ -1,5 +1,6 @@
 //! The indices along the symmetry line (deviation, imbalance, inclination, kyphosis,
-//! lordosis, their largest and RMS values, all σ in one propagation) and the maps.
+//! lordosis, their largest and RMS values, their σ in one propagation besides what choosing
+//! the largest and the noise's share of an RMS need) and the maps.
 
 use super::levels::{LevelVars, Measured, Var};
 use super::{selection, Axes, BackAnalysis, Level, Map, Posture};
@@ -48,7 +49,7 @@ impl Measured<'_> {
             .iter()
             .filter_map(|l| l.atr.as_ref().map(|a| &a.0))
             .collect();
-        let atr_max = (!atrs.is_empty()).then(|| self.largest(&atrs));
+        let atr_max = (!atrs.is_empty()).then(|| self.largest(&atrs, &self.sigmas(&atrs)));
         // Every σ in one propagation: per level x, depth, rotation, sagittal, deviation, skin, atr.
         let mut grads: Vec<DVector<f64>> = Vec::new();
         let mut sampling: Vec<f64> = Vec::new();
@@ -72,10 +73,11 @@ impl Measured<'_> {
                 ]
             })
             .collect();
-        let rot_max = self.largest(&rotations);
-        let rot_rms = self.rms(&rotations);
-        let dev_max = self.largest(&deviations);
-        let dev_rms = self.rms(&deviations);
+        let (rot_sigma, dev_sigma) = (self.sigmas(&rotations), self.sigmas(&deviations));
+        let rot_max = self.largest(&rotations, &rot_sigma);
+        let rot_rms = self.rms(&rotations, &rot_sigma);
+        let dev_max = self.largest(&deviations, &dev_sigma);
+        let dev_rms = self.rms(&deviations, &dev_sigma);
         let scalars = [
             Some(&rot_max),
             Some(&rot_rms),
@@ -271,10 +273,10 @@ impl Measured<'_> {
     }
 
     /// The value of largest magnitude (signed) with its gradient, its sampling term holding
-    /// what choosing it among the levels adds ([`selection`]).
-    fn largest(&self, vars: &[&Var]) -> Var {
+    /// what choosing it among the levels adds ([`selection`]); `sigma`: each value's σ.
+    fn largest(&self, vars: &[&Var], sigma: &[f64]) -> Var {
         let values: Vec<f64> = vars.iter().map(|v| v.value).collect();
-        let (j, added) = selection::largest(&values, &self.sigmas(vars), |at| {
+        let (j, added) = selection::largest(&values, sigma, |at| {
             let g: Vec<DVector<f64>> = at.iter().map(|&k| vars[k].gradient.clone()).collect();
             self.fit.covariance(&g)
         })
@@ -289,14 +291,14 @@ impl Measured<'_> {
     /// is the truth's plus the mean of their variances), so the RMS leans away from the
     /// truth's by rms − √(rms² − mean σ²): its sampling term holds that in quadrature. On a
     /// straight back, whose profile is mostly noise, the RMS rotation was 0.26° off (20 mm, 30
-    /// draws), 3.3 times the σ its gradient gives.
-    fn rms(&self, vars: &[&Var]) -> Var {
+    /// draws), 3.3 times the σ its gradient gives. `sigma`: each value's σ.
+    fn rms(&self, vars: &[&Var], sigma: &[f64]) -> Var {
         let n = vars.len() as f64;
         let value = (vars.iter().map(|v| v.value * v.value).sum::<f64>() / n).sqrt();
         // d rms / d v_k = v_k / (n rms); all zero where every value is.
         let c = if value > 0.0 { 1.0 / (n * value) } else { 0.0 };
         let terms: Vec<(&Var, f64)> = vars.iter().map(|v| (*v, v.value * c)).collect();
-        let noise = self.sigmas(vars).iter().map(|s| s * s).sum::<f64>() / n;
+        let noise = sigma.iter().map(|s| s * s).sum::<f64>() / n;
         let sum = Var::sum(&terms);
         Var {
             value,
