@@ -167,6 +167,110 @@ fn real_backs_against_cobb() {
     assert!(atr >= 0.6, "r(scoliometer, Cobb) = {atr:.3}");
     rotation_against_the_dense_scans(&scans, &patients);
     against_a_denser_pattern(&scans, &patients);
+    mirrored(&scans, &patients);
+}
+
+/// Each back mirrored left to right is another back, with the opposite curve: its analysis
+/// must be the mirror image of the back's, within σ, since the lattice, the surface's grid
+/// and the support mask fall on it otherwise (upright the camera's x is mirrored, bent
+/// forward its y: the trunk's axis lies along x). Per patient, the largest rotation and the
+/// largest scoliometer reading change sign and keep their magnitude within 2.5 σ of the
+/// difference, and the rotation profile's RMS of sum/σ over the levels both keep is under 2
+/// (as between lattice placements, [`agree_within_sigma`]). Measured: rotation profiles
+/// 0.00-0.07, the largest rotation and scoliometer reading 0.3 σ apart at most. This found
+/// an ambiguous level whose two symmetry points were both refined onto one (patient 10:
+/// 20.1 ± 0.6° against 25.2° mirrored, the profile 2.6; now 25.2 ± 2.5°). The largest
+/// asymmetry is reported, not asserted: it is read on the map's cells, a grid step apart
+/// from where the measured surface begins, and where a hump's peak falls between two cells
+/// the mirror image reads it apart by 0.2-1.4 σ, and by 4.9 mm (4.4 σ) on patient 10. Two
+/// remedies were measured and not kept: read between the cells (the largest within a step of
+/// its cell), patient 10 came to 1.9 σ, but the value moved toward the measured surface's
+/// edge, where the simulated backs' error/σ rose from 0.84-1.76 to 1.03-2.20; a σ term for
+/// the cells' phase (|∂A/∂a| × step / √12) brought every mirror image within 1.4 σ, but put
+/// the simulated curves' error/σ (against the truth at the same cell) at 0.32-0.50.
+fn mirrored(scans: &[Patient], original: &[Reading]) {
+    let mirror = |(path, points): &(PathBuf, Vec<Vector3<f64>>), axis: usize| {
+        let flipped = points.iter().map(|p| {
+            let mut q = *p;
+            q[axis] = -q[axis];
+            q
+        });
+        (path.clone(), flipped.collect())
+    };
+    let flipped: Vec<Patient> = scans
+        .iter()
+        .map(|p| Patient {
+            name: p.name.clone(),
+            cobb: p.cobb,
+            upright: mirror(&p.upright, 0),
+            bent: mirror(&p.bent, 1),
+        })
+        .collect();
+    for (p, q) in original.iter().zip(readings(&flipped, Lattice::default())) {
+        let largest: [(&str, [f64; 2], [f64; 2]); 3] = [
+            (
+                "largest rotation",
+                [p.upright.rotation_max_deg, p.upright.rotation_max_deg_sigma],
+                [q.upright.rotation_max_deg, q.upright.rotation_max_deg_sigma],
+            ),
+            (
+                "largest scoliometer reading",
+                [
+                    p.bent.atr_max_deg.unwrap(),
+                    p.bent.atr_max_deg_sigma.unwrap(),
+                ],
+                [
+                    q.bent.atr_max_deg.unwrap(),
+                    q.bent.atr_max_deg_sigma.unwrap(),
+                ],
+            ),
+            (
+                "largest asymmetry",
+                [
+                    p.upright.asymmetry_max_mm.unwrap(),
+                    p.upright.asymmetry_max_mm_sigma.unwrap(),
+                ],
+                [
+                    q.upright.asymmetry_max_mm.unwrap(),
+                    q.upright.asymmetry_max_mm_sigma.unwrap(),
+                ],
+            ),
+        ];
+        let mut profile = Errors::default();
+        for l in &p.upright.levels {
+            // The levels lie alike: the mirror leaves the heights as they are.
+            if let Some(m) = q.upright.levels.iter().find(|m| (m.y - l.y).abs() < 0.5) {
+                let sigma = l.rotation_sigma_deg.hypot(m.rotation_sigma_deg);
+                profile.push(l.rotation_deg + m.rotation_deg, sigma);
+            }
+        }
+        let apart: Vec<String> = largest
+            .iter()
+            .map(|(name, [a, sa], [b, sb])| {
+                let z = (a + b).abs() / sa.hypot(*sb);
+                // The largest asymmetry is reported only (the doc above).
+                let asserted = !name.ends_with("asymmetry");
+                assert!(
+                    !asserted || z < 2.5,
+                    "{} mirrored: {name} {a:.1} ± {sa:.1} against {b:.1} ± {sb:.1}",
+                    p.name
+                );
+                format!("{name} {a:+.1} ± {sa:.1} against {b:+.1} ± {sb:.1} ({z:.1} σ)")
+            })
+            .collect();
+        eprintln!(
+            "{} mirrored: rotation profile RMS sum/σ {:.2} over {} levels; {}",
+            p.name,
+            profile.z(),
+            profile.count(),
+            apart.join(", ")
+        );
+        assert!(
+            profile.z() < 2.0 && profile.count() * 4 >= p.upright.levels.len() * 3,
+            "{}",
+            p.name
+        );
+    }
 }
 
 /// The surface rotation at 15 mm against the dense scan's own (40,000-55,000 points 1.5 mm

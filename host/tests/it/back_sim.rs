@@ -196,6 +196,12 @@ fn largest(values: impl Iterator<Item = f64>) -> f64 {
     values.fold(0.0, |m: f64, x| if x.abs() > m.abs() { x } else { m })
 }
 
+/// The root mean square of `values`.
+fn rms(values: impl Iterator<Item = f64>) -> f64 {
+    let (sum, n) = values.fold((0.0, 0.0), |(s, n), x| (s + x * x, n + 1.0));
+    (sum / n).sqrt()
+}
+
 impl IndexErrors {
     /// Adds an analysis of `model` (the frame 0 model of a scan) to the errors.
     pub fn add(&mut self, model: &BackModel, a: &BackAnalysis) {
@@ -237,16 +243,12 @@ impl IndexErrors {
                 t.1 - (1.0 - f) * first.1 - f * last.1
             })
             .collect();
-        let rms = |v: &mut dyn Iterator<Item = f64>| {
-            let (sum, n) = v.fold((0.0, 0.0), |(s, n), x| (s + x * x, n + 1.0));
-            (sum / n).sqrt()
-        };
         self.rotation_rms.push(
-            a.rotation_rms_deg - rms(&mut truth.iter().map(|t| t.3)),
+            a.rotation_rms_deg - rms(truth.iter().map(|t| t.3)),
             a.rotation_rms_deg_sigma,
         );
         self.lateral_deviation_rms.push(
-            a.lateral_deviation_rms_mm - rms(&mut deviation.iter().copied()),
+            a.lateral_deviation_rms_mm - rms(deviation.iter().copied()),
             a.lateral_deviation_rms_mm_sigma,
         );
         // The largest values as magnitudes: their sign is chance where two levels of opposite
