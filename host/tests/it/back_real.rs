@@ -180,7 +180,10 @@ fn real_backs_against_cobb() {
 /// (patient 10, whose line is ambiguous at one level, 0.35°). Turned further the symmetry
 /// search (a mirror in the camera's x) can lose the line: at +3.5° patient 10 keeps 8 of 17
 /// levels, on a false axis; at +5° patient 6 keeps 9 of 24 (at −5° every back holds). The
-/// subject must face the camera within about 2.5°.
+/// subject must face the camera within about 2.5°. A coarse search on the reflection about
+/// the surface's normal (blind to a turn) kept patient 6's line at +5° (22 levels), not
+/// patient 10's (12), and left one back's forward-bent analyses unstable across lattice
+/// placements (its scoliometer's change/σ 6.5): not kept.
 fn turned(scans: &[Patient], original: &[Reading]) {
     for theta in [-2.5_f64, 2.5] {
         let (s, c) = theta.to_radians().sin_cos();
