@@ -4,9 +4,10 @@
 //! The two scans are independent measurements: a change's σ is √(σ₁² + σ₂²). Three shares
 //! of σ lean alike in two scans of one back, so this overstates a change's σ where they
 //! weigh: a calibration shared by both (its common share cancels in part), the sampling terms
-//! for surface detail between the dots (where the dots fall alike on the back), and what choosing a largest value adds (the same values compete in both). A
-//! change exceeds the noise when it is larger than [`Comparison::threshold`] σ (1.96: 5 % of
-//! changes from noise alone are flagged). Profiles are compared at the first analysis'
+//! for surface detail between the dots (where the dots fall alike on the back), and what
+//! choosing a largest value adds (the same values compete in both). A change exceeds the noise
+//! when it is larger than [`Comparison::threshold`] σ (1.96: 5 % of changes from noise alone
+//! are flagged). Profiles are compared at the first analysis'
 //! levels, the second's interpolated between its two nearest levels (its σ taken as the
 //! interpolated σ, as if the two levels' errors were fully correlated).
 //!

@@ -1,6 +1,7 @@
 //! The indices along the symmetry line (deviation, imbalance, inclination, kyphosis,
-//! lordosis, their largest and RMS values, their σ in one propagation besides what choosing
-//! the largest and the noise's share of an RMS need) and the maps.
+//! lordosis, their largest and RMS values) and the maps. The σ are propagated from the fit
+//! twice: the levels' values first, then the indices, whose largest and RMS values need the
+//! levels' σ (what choosing the largest and the noise's share of an RMS add).
 
 use super::levels::{LevelVars, Measured, Var};
 use super::{selection, Axes, BackAnalysis, Level, Map, Posture};
@@ -49,8 +50,7 @@ impl Measured<'_> {
             .iter()
             .filter_map(|l| l.atr.as_ref().map(|a| &a.0))
             .collect();
-        let atr_max = (!atrs.is_empty()).then(|| self.largest(&atrs, &self.sigmas(&atrs)));
-        // Every σ in one propagation: per level x, depth, rotation, sagittal, deviation, skin, atr.
+        // The levels' σ in one propagation: x, depth, rotation, sagittal, deviation, skin, atr.
         let mut grads: Vec<DVector<f64>> = Vec::new();
         let mut sampling: Vec<f64> = Vec::new();
         let mut slot = |var: &Var| {
@@ -73,11 +73,21 @@ impl Measured<'_> {
                 ]
             })
             .collect();
-        let (rot_sigma, dev_sigma) = (self.sigmas(&rotations), self.sigmas(&deviations));
+        let sigma = self.fit.sigmas(&grads, &sampling);
+        // Each level's σ of the value in `field` (where the level has one).
+        let of = |field: usize| -> Vec<f64> {
+            per_level
+                .iter()
+                .filter_map(|k| k[field])
+                .map(|k| sigma[k])
+                .collect()
+        };
+        let (rot_sigma, dev_sigma) = (of(2), of(4));
         let rot_max = self.largest(&rotations, &rot_sigma);
         let rot_rms = self.rms(&rotations, &rot_sigma);
         let dev_max = self.largest(&deviations, &dev_sigma);
         let dev_rms = self.rms(&deviations, &dev_sigma);
+        let atr_max = (!atrs.is_empty()).then(|| self.largest(&atrs, &of(6)));
         let scalars = [
             Some(&rot_max),
             Some(&rot_rms),
@@ -89,8 +99,13 @@ impl Measured<'_> {
             lordosis.as_ref(),
             atr_max.as_ref(),
         ];
-        let scalar_slots: Vec<Option<usize>> = scalars.iter().map(|s| s.map(&mut slot)).collect();
-        let sigma = self.fit.sigmas(&grads, &sampling);
+        // The indices' σ, in a second propagation.
+        let present: Vec<&Var> = scalars.iter().flatten().copied().collect();
+        let mut present_sigma = self.sigmas(&present).into_iter();
+        let scalar_sigma: Vec<Option<f64>> = scalars
+            .iter()
+            .map(|v| v.and_then(|_| present_sigma.next()))
+            .collect();
         let sd = |k: Option<usize>| k.map(|k| sigma[k]);
         let deg = f64::to_degrees;
         let out_levels = levels
@@ -117,7 +132,7 @@ impl Measured<'_> {
                 symmetry_x_rival: l.rival_x,
             })
             .collect();
-        let s = |i: usize| sd(scalar_slots[i]).unwrap_or(f64::NAN);
+        let s = |i: usize| scalar_sigma[i].unwrap_or(f64::NAN);
         let (asymmetry, topography, cells) = self.maps(&levels);
         let asymmetry_max = self.largest_inside(&asymmetry, &cells, &levels);
         BackAnalysis {
@@ -149,11 +164,11 @@ impl Measured<'_> {
             trunk_inclination_deg: deg(inclination.value),
             trunk_inclination_deg_sigma: deg(s(5)),
             kyphosis_deg: kyphosis.as_ref().map(|k| deg(k.value)),
-            kyphosis_deg_sigma: sd(scalar_slots[6]).map(deg),
+            kyphosis_deg_sigma: scalar_sigma[6].map(deg),
             lordosis_deg: lordosis.as_ref().map(|k| deg(k.value)),
-            lordosis_deg_sigma: sd(scalar_slots[7]).map(deg),
+            lordosis_deg_sigma: scalar_sigma[7].map(deg),
             atr_max_deg: atr_max.as_ref().map(|a| deg(a.value)),
-            atr_max_deg_sigma: sd(scalar_slots[8]).map(deg),
+            atr_max_deg_sigma: scalar_sigma[8].map(deg),
             asymmetry_max_mm: asymmetry_max.map(|m| m.0),
             asymmetry_max_mm_sigma: asymmetry_max.map(|m| m.1),
             asymmetry_max_at: asymmetry_max.map(|m| m.2),
