@@ -3,7 +3,7 @@
 use super::args::OutputArgs;
 use crate::io::analysis_file::read_report;
 use crate::io::atomic::write_all_atomic;
-use crate::report::back_report::{indices, plus_minus, report_html};
+use crate::report::back_report::{indices, line_note, plus_minus, report_html};
 use crate::report::console::Output;
 use crate::workflows::back::analyse_clouds;
 use anyhow::Result;
@@ -111,6 +111,9 @@ pub fn exec(what: What) -> Result<()> {
             );
             for (name, value, sigma, unit) in indices(a) {
                 text += &format!("  {name}: {} {unit}\n", plus_minus(value, sigma));
+            }
+            if let Some(note) = line_note(a) {
+                output.status(format!("note: {note}"));
             }
             text += &format!("-> {}, {}\n", json_path.display(), html_path.display());
             output.result(&text, &serde_json::to_value(&report)?)

@@ -78,6 +78,9 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         a.fit_chi,
         a.misfit_mm
     );
+    if let Some(note) = line_note(a) {
+        let _ = writeln!(html, "<p class=\"note\">{}</p>", escape(&note));
+    }
     html += "<h2>Measures</h2>\n<table><tr><th>measure</th><th>value ± σ</th></tr>\n";
     for (name, value, sigma, unit) in indices(a) {
         let _ = writeln!(
@@ -169,6 +172,30 @@ pub fn report_html(report: &BackReport) -> Result<String> {
 }
 
 /// What the page says where the symmetry line is ambiguous (nothing where it is not).
+/// What the reader must know of the levels where the symmetry line was not found
+/// ([`BackAnalysis::levels_left_out`]), if any: the report, `deltaz analyse back` and the
+/// station say it alike.
+pub fn line_note(a: &BackAnalysis) -> Option<String> {
+    let left_out = &a.levels_left_out;
+    if left_out.is_empty() {
+        return None;
+    }
+    let ys: Vec<String> = left_out.iter().map(|y| format!("{y:.0}")).collect();
+    let mut note = format!(
+        "The symmetry line was not found at {} of the {} levels where the back is measured \
+         (y = {} mm): nothing is measured there, and a largest value may lie among them.",
+        left_out.len(),
+        left_out.len() + a.levels.len(),
+        ys.join(", ")
+    );
+    if a.line_mostly_lost() {
+        note += " It holds at fewer than half of them: the subject may not have faced the \
+                 camera squarely (within about 2.5°), or part of the back was out of view or \
+                 covered. Capture again.";
+    }
+    Some(note)
+}
+
 fn ambiguity_note(levels: &[Level]) -> String {
     let ambiguous = levels
         .iter()

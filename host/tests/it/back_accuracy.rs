@@ -17,7 +17,8 @@ const SPACING: f64 = 20.0;
 fn report(what: &str, e: &IndexErrors) {
     eprintln!(
         "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}° \
-         (its error {:.3}°, {:.2}), RMS rotation {:.3}° ({:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2})",
+         (its error {:.3}°, {:.2}), RMS rotation {:.3}° ({:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2}); \
+         levels left out {} in {} draws",
         e.symmetry_x.rms(),
         e.symmetry_x.z(),
         e.rotation.rms(),
@@ -31,6 +32,8 @@ fn report(what: &str, e: &IndexErrors) {
         e.atr.z(),
         e.atr_max.rms(),
         e.atr_max.z(),
+        e.left_out,
+        e.largest_rotation.len(),
     );
 }
 

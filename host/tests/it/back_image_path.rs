@@ -158,7 +158,7 @@ fn report(what: &str, e: &IndexErrors) {
         format!("{name} {:.3} {unit} ({:.2})", x.rms(), x.z())
     };
     eprintln!(
-        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°",
+        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°; levels left out {}",
         line("symmetry x", &e.symmetry_x, "mm"),
         line("rotation", &e.rotation, "°"),
         line("skin angle", &e.skin_angle, "°"),
@@ -175,6 +175,7 @@ fn report(what: &str, e: &IndexErrors) {
         line("asymmetry map", &e.asymmetry, "mm"),
         line("largest asymmetry", &e.asymmetry_max, "mm"),
         e.largest_rotation.iter().fold(0.0_f64, |m, x| m.max(*x)),
+        e.left_out,
     );
 }
 

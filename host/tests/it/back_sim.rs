@@ -189,6 +189,10 @@ pub struct IndexErrors {
     pub asymmetry_max: Errors,
     /// The largest |rotation| of each draw (°).
     pub largest_rotation: Vec<f64>,
+    /// The levels where the symmetry line was not found, all draws.
+    pub left_out: usize,
+    /// The draws whose line is mostly lost (`BackAnalysis::line_mostly_lost`).
+    pub lines_lost: usize,
 }
 
 /// The signed value of largest magnitude.
@@ -206,6 +210,8 @@ impl IndexErrors {
     /// Adds an analysis of `model` (the frame 0 model of a scan) to the errors.
     pub fn add(&mut self, model: &BackModel, a: &BackAnalysis) {
         let axes = axes_of(a);
+        self.left_out += a.levels_left_out.len();
+        self.lines_lost += usize::from(a.line_mostly_lost());
         let mut truth = Vec::new();
         for l in &a.levels {
             let (x, n) = model
@@ -355,8 +361,9 @@ pub fn check_line_and_rotation(what: &str, e: &IndexErrors) {
 }
 
 /// The accuracy bars (rotation ≤ 0.5° RMS, its error/σ within 0.8-1.25; symmetry line
-/// ≤ 2 mm RMS), the line's error/σ left to the caller.
+/// ≤ 2 mm RMS), the line's error/σ left to the caller, and no draw's line mostly lost.
 pub fn check_accuracy(what: &str, e: &IndexErrors) {
+    assert_eq!(e.lines_lost, 0, "{what}: lines mostly lost");
     assert!(
         e.rotation.rms() <= 0.5,
         "{what}: rotation RMS {:.3}°",

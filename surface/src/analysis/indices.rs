@@ -151,6 +151,7 @@ impl Measured<'_> {
             fit_chi: self.fit.chi(),
             misfit_mm: misfit,
             levels: out_levels,
+            levels_left_out: vec![],
             rotation_max_deg: deg(rot_max.value),
             rotation_max_deg_sigma: deg(s(0)),
             rotation_rms_deg: deg(rot_rms.value),

@@ -204,7 +204,15 @@ impl Measured<'_> {
                 }
             })
             .collect();
-        Ok(self.summarise(levels, w, skin_d, spacing, misfit))
+        let left_out = runs
+            .iter()
+            .map(|r| r.0)
+            .filter(|v| found.iter().all(|f| f.v != *v))
+            .collect();
+        Ok(BackAnalysis {
+            levels_left_out: left_out,
+            ..self.summarise(levels, w, skin_d, spacing, misfit)
+        })
     }
 
     /// The surface's misfit within `window` of the symmetry line `line` ((v, a) per level;

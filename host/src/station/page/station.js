@@ -70,15 +70,20 @@ function showLive(f) {
 // Surface: the station's figures and the measures with their σ.
 function showSurface(s) {
   const message = $('surface-message');
+  const line = $('surface-line');
   if (s.error) {
+    line.hidden = true;
     message.hidden = false;
     message.textContent = `no surface from the latest frames: ${s.error}`;
     return;
   }
   message.hidden = true;
+  line.hidden = !s.line_note;
+  line.textContent = s.line_note || '';
   $('surface-topography').innerHTML = s.topography_svg;
   $('surface-rotation').innerHTML = s.rotation_svg;
   $('surface').dataset.levels = String(s.levels);
+  $('surface').dataset.leftOut = String(s.levels_left_out);
   const table = $('surface-measures');
   table.replaceChildren();
   row(table, ['measure', 'value ± σ'], true);
