@@ -71,6 +71,11 @@ pub struct Comparison {
     /// Whether the spacings differ by more than [`SCALE_TOLERANCE`]: the changes then hold
     /// the difference of scale too, beyond their σ.
     pub scales_differ: bool,
+    /// Whether each analysis' symmetry line is mostly lost, before and after
+    /// ([`BackAnalysis::line_mostly_lost`]): its measures describe a small part of the back,
+    /// perhaps along a false axis, so a change may be the line's rather than the back's.
+    #[serde(default)]
+    pub lines_lost: [bool; 2],
 }
 
 /// The threshold of [`compare`].
@@ -179,5 +184,6 @@ pub fn compare(before: &BackAnalysis, after: &BackAnalysis) -> Comparison {
         scales_differ: spacings_mm[0].max(spacings_mm[1]) / spacings_mm[0].min(spacings_mm[1])
             - 1.0
             > SCALE_TOLERANCE,
+        lines_lost: [before.line_mostly_lost(), after.line_mostly_lost()],
     }
 }

@@ -142,6 +142,15 @@ pub fn exec(what: What) -> Result<()> {
                     c.spacings_mm[0], c.spacings_mm[1]
                 ));
             }
+            for (path, lost) in [&before, &after].into_iter().zip(c.lines_lost) {
+                if lost {
+                    output.status(format!(
+                        "note: {}: the symmetry line holds at fewer than half the back's levels, \
+                         so a change may be the line's rather than the back's (capture again)",
+                        path.display()
+                    ));
+                }
+            }
             let mut text = format!(
                 "changes from {} to {} (beyond {:.2} σ: exceeds the measurement noise):\n",
                 before.display(),

@@ -280,9 +280,9 @@ fn analyse_back_refuses_what_it_cannot_measure() {
 /// Where the back's left side is out of view beside the spine (the measured surface ends
 /// within the symmetry window of it, as at the real backs' waists), the symmetry line is not
 /// found there: analysis.json lists those levels, and the report and the command say so; where
-/// it holds at fewer than half the levels, they ask for another capture (the line's few levels
-/// may lie on a false axis: cut over 400 mm, this back's largest rotation read −19.6° against
-/// its 10°).
+/// it holds at fewer than half the levels, they ask for another capture, and a comparison
+/// names that analysis (the line's few levels may lie on a false axis: cut over 400 mm, this
+/// back's largest rotation read −19.6° against its 10° on one draw).
 #[test]
 fn analyse_back_states_where_the_line_is_not_found() {
     let dir = tempfile::tempdir().unwrap();
@@ -309,9 +309,12 @@ fn analyse_back_states_where_the_line_is_not_found() {
             7,
             (20.0, kept),
         );
+        let dir = format!("c{k}");
         let out = deltaz_in(
             d,
-            &["analyse", "back", "--cloud", &cloud, "--out", "c", "--json"],
+            &[
+                "analyse", "back", "--cloud", &cloud, "--out", &dir, "--json",
+            ],
         );
         let analysed = json(&out);
         let left_out: Vec<f64> = analysed["levels_left_out"]
@@ -328,7 +331,7 @@ fn analyse_back_states_where_the_line_is_not_found() {
             "case {k}: {levels} levels, left out {left_out:?}"
         );
         let stderr = String::from_utf8_lossy(&out.stderr);
-        let html = std::fs::read_to_string(d.join("c/report.html")).unwrap();
+        let html = std::fs::read_to_string(d.join(&dir).join("report.html")).unwrap();
         let stated = format!(
             "not found at {} of the {} levels",
             left_out.len(),
@@ -341,4 +344,22 @@ fn analyse_back_states_where_the_line_is_not_found() {
         assert_eq!(stderr.contains("Capture again"), lost, "case {k}: {stderr}");
         assert_eq!(html.contains("Capture again"), lost, "case {k}");
     }
+    // Compared, the analysis whose line is mostly lost is named.
+    let out = deltaz_in(
+        d,
+        &[
+            "analyse",
+            "compare",
+            "c0/analysis.json",
+            "c1/analysis.json",
+            "--json",
+        ],
+    );
+    assert_eq!(json(&out)["lines_lost"], serde_json::json!([false, true]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("c1/analysis.json: the symmetry line holds at fewer than half")
+            && !stderr.contains("c0/analysis.json: the symmetry line"),
+        "{stderr}"
+    );
 }

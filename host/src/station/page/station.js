@@ -185,6 +185,13 @@ $('subject').addEventListener('change', () => {
   if (subject) loadSessions(subject).catch((error) => setText('capture-message', error.message, false));
 });
 
+// The sessions whose symmetry line holds at fewer than half the back's levels, if any.
+function lost(c) {
+  const which = [c.before, c.after].filter((_, k) => c.lines_lost[k]);
+  return which.length ? `; the symmetry line of ${which.join(' and ')} holds at fewer than half `
+    + 'the levels, so a change may be the line\'s rather than the back\'s (capture again)' : '';
+}
+
 $('compare-form').addEventListener('submit', async (e) => {
   e.preventDefault();
   const subject = $('sessions-subject').textContent;
@@ -202,7 +209,8 @@ $('compare-form').addEventListener('submit', async (e) => {
     setText('compare-message', `${c.before} → ${c.after}: surface rotation changed beyond the noise `
       + `(${fixed(c.threshold, 2)} σ) at ${beyond} of ${c.levels.length} levels`
       + (c.scales_differ ? `; the dots lay ${fixed(c.spacings_mm[0], 1)} and ${fixed(c.spacings_mm[1], 1)} mm `
-        + 'apart: the changes also hold that difference of scale (scan at the same distance)' : ''), true);
+        + 'apart: the changes also hold that difference of scale (scan at the same distance)' : '')
+      + lost(c), true);
   } catch (error) {
     setText('compare-message', `no comparison: ${error.message}`, false);
   }
