@@ -168,6 +168,11 @@ fn the_page_shows_live_points_and_surface_and_captures_in_a_real_browser() {
             .await;
             assert!(message.starts_with("saved session"), "{message}");
             let name = c.find(Locator::Id("capture")).await.unwrap().attr("data-session").await.unwrap().unwrap();
+            // The levels where the session's symmetry line was not found are told, if any.
+            let analysis = std::fs::read_to_string(data.join("s1").join(&name).join("analysis.json")).unwrap();
+            let analysis: serde_json::Value = serde_json::from_str(&analysis).unwrap();
+            let left_out = analysis["levels_left_out"].as_array().unwrap().len();
+            assert_eq!(message.contains("not found at"), left_out > 0, "{message}");
             if k == 0 {
                 // The message stays until the next capture: clear it to see the next one.
                 c.execute("document.getElementById('capture-message').textContent = ''", vec![]).await.unwrap();

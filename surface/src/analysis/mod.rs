@@ -286,7 +286,8 @@ impl BackAnalysis {
     /// measured ([`Self::levels_left_out`]): its measures then describe a small part of the
     /// back, perhaps along a false axis. On the real backs standing square to the camera it held
     /// at 54 % of them or more on every lattice placement; turned by 3.5-5° from the camera, where
-    /// the line was lost, at 31-35 %.
+    /// the line was lost, at 31-35 %. A symptom, not a proof: turned by 7°, one of them held a
+    /// false axis at 14 of its 26 levels, so the subject must still face the camera.
     pub fn line_mostly_lost(&self) -> bool {
         2 * self.levels.len() < self.levels.len() + self.levels_left_out.len()
     }

@@ -171,7 +171,8 @@ $('capture-form').addEventListener('submit', async (e) => {
     const s = await request('/api/capture', { subject, posture: $('posture').value });
     const [r, sr] = s.rotation_max_deg;
     setText('capture-message', `saved session ${s.name} of ${s.subject}: ${s.frames.length} frames, `
-      + `largest surface rotation ${fixed(r, 1)} ± ${fixed(sr, 1)}°`, true);
+      + `largest surface rotation ${fixed(r, 1)} ± ${fixed(sr, 1)}°`
+      + (s.line_note ? `. ${s.line_note}` : ''), true);
     $('capture').dataset.session = s.name;
     await loadSubjects();
     await loadSessions(subject);
