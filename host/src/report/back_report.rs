@@ -171,7 +171,6 @@ pub fn report_html(report: &BackReport) -> Result<String> {
     Ok(html)
 }
 
-/// What the page says where the symmetry line is ambiguous (nothing where it is not).
 /// What the reader must know of the levels where the symmetry line was not found
 /// ([`BackAnalysis::levels_left_out`]), if any: the report, `deltaz analyse back` and the
 /// station say it alike.
@@ -196,6 +195,7 @@ pub fn line_note(a: &BackAnalysis) -> Option<String> {
     Some(note)
 }
 
+/// What the page says where the symmetry line is ambiguous (nothing where it is not).
 fn ambiguity_note(levels: &[Level]) -> String {
     let ambiguous = levels
         .iter()

@@ -12,6 +12,7 @@ impl Measured<'_> {
     pub(super) fn summarise(
         &self,
         levels: Vec<LevelVars>,
+        left_out: Vec<f64>,
         window: f64,
         skin_d: f64,
         spacing: f64,
@@ -151,7 +152,7 @@ impl Measured<'_> {
             fit_chi: self.fit.chi(),
             misfit_mm: misfit,
             levels: out_levels,
-            levels_left_out: vec![],
+            levels_left_out: left_out,
             rotation_max_deg: deg(rot_max.value),
             rotation_max_deg_sigma: deg(s(0)),
             rotation_rms_deg: deg(rot_rms.value),

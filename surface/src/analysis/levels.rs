@@ -209,10 +209,7 @@ impl Measured<'_> {
             .map(|r| r.0)
             .filter(|v| found.iter().all(|f| f.v != *v))
             .collect();
-        Ok(BackAnalysis {
-            levels_left_out: left_out,
-            ..self.summarise(levels, w, skin_d, spacing, misfit)
-        })
+        Ok(self.summarise(levels, left_out, w, skin_d, spacing, misfit))
     }
 
     /// The surface's misfit within `window` of the symmetry line `line` ((v, a) per level;

@@ -289,7 +289,7 @@ impl BackAnalysis {
     /// the line was lost, at 31-35 %. A symptom, not a proof: turned by 7°, one of them held a
     /// false axis at 14 of its 26 levels, so the subject must still face the camera.
     pub fn line_mostly_lost(&self) -> bool {
-        2 * self.levels.len() < self.levels.len() + self.levels_left_out.len()
+        self.levels.len() < self.levels_left_out.len()
     }
 }
 
