@@ -96,6 +96,20 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
     Some(((dd - dt * dt / tt) / total, dt / (2.0 * tt)))
 }
 
+/// The misfit of the reflection about the surface's normal at x (the refinement's residual,
+/// blind to a turn of the section), per unit weight, and the slope there.
+fn normal_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
+    let slope = fit.value(x, v, D::A)?;
+    let theta = slope.atan();
+    let (mut rr, mut total) = (0.0, 0.0);
+    for (t, wt) in offsets(w) {
+        let r = residual(fit, v, x, theta, t)?.r;
+        rr += wt * r * r;
+        total += wt;
+    }
+    Some((rr / total, slope))
+}
+
 /// The coarse search over [lo, hi] (a quarter knot apart) in a section measured over `run`:
 /// each candidate's odd-part misfit over the window times that over a wider one (a paraspinal
 /// muscle's crest looks symmetric close by, the trunk about it does not), and the window's
@@ -106,19 +120,35 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 /// than the median: the shoulders, the hips.) Each local minimum is then found to within
 /// [`TOLERANCE`]: at a spinous groove the misfit's minimum is narrower than the step, and a
 /// candidate a few mm beside it scores worse than a false axis elsewhere.
+///
+/// `about_normal` (standing): the misfit is the reflection's about the surface's normal at
+/// each candidate, not the odd part's after its linear term, which a section turned with the
+/// subject no longer fits (its two sides foreshorten unequally): on the real backs turned from
+/// the camera, one lost its line at +5° with the odd part and held it to +7° about the normal.
+/// Bent forward a section is a convex arc, mirror symmetric about every normal, and the odd
+/// part in the camera's frame breaks that tie (about the normal, one real back's scoliometer
+/// reading moved with the lattice's placement by 6.5 times its σ).
 pub(crate) fn coarse(
     fit: &Fit,
     v: f64,
     w: f64,
     (lo, hi): (f64, f64),
     run: (f64, f64),
+    about_normal: bool,
 ) -> Vec<Candidate> {
     let step = fit.grid.step / 4.0;
     let count = ((hi - lo) / step).floor() as usize;
     let wide = (2.0 * w).min(lo - run.0).min(run.1 - hi).max(w);
+    let misfit = |x: f64, w: f64| {
+        if about_normal {
+            normal_misfit(fit, v, x, w)
+        } else {
+            odd_misfit(fit, v, x, w)
+        }
+    };
     let at = |x: f64| {
-        let (e, b) = odd_misfit(fit, v, x, w)?;
-        let (e_wide, _) = odd_misfit(fit, v, x, wide)?;
+        let (e, b) = misfit(x, w)?;
+        let (e_wide, _) = misfit(x, wide)?;
         Some((x, e * e_wide, b))
     };
     let scan: Vec<_> = (0..=count)

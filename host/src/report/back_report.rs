@@ -189,7 +189,7 @@ pub fn line_note(a: &BackAnalysis) -> Option<String> {
     );
     if a.line_mostly_lost() {
         note += " It holds at fewer than half of them: the subject may not have faced the \
-                 camera squarely (within about 2.5°), or part of the back was out of view or \
+                 camera squarely (within about 3.5°), or part of the back was out of view or \
                  covered. Capture again.";
     }
     Some(note)

@@ -156,7 +156,7 @@ fn the_page_shows_live_points_and_surface_and_captures_in_a_real_browser() {
         // The operator is told how the subject stands (the real backs' stance limit).
         let stance = c.find(Locator::Id("capture-stance")).await.unwrap();
         assert!(stance.is_displayed().await.unwrap());
-        assert!(stance.text().await.unwrap().contains("2.5°"));
+        assert!(stance.text().await.unwrap().contains("3.5°"));
         // Capture twice, then compare the two sessions.
         c.find(Locator::Id("subject")).await.unwrap().send_keys("s1").await.unwrap();
         let mut sessions = Vec::new();

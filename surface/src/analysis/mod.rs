@@ -212,10 +212,9 @@ pub struct BackAnalysis {
     /// either side, or none that holds to the line. The profiles and every measure leave them
     /// out, so nothing there is measured: a largest value may lie among them. On the real
     /// backs standing square to the camera, 0 to 12 of 23-29 levels over five lattice placements
-    /// (at the line's ends, and at the waist where the measured surface ends within a window and
-    /// a knot of the spine; on the back models none, or the one beyond the line's top end);
-    /// turned from the camera a back can lose most of its line (one real back turned by 3.5°: 18
-    /// of 26). See [`Self::line_mostly_lost`].
+    /// (at the line's ends, and at waists where the measured surface ends within a window and a
+    /// knot of the spine even with the window narrowed; on the back models none, or the one
+    /// beyond the line's top end). See [`Self::line_mostly_lost`].
     #[serde(default)]
     pub levels_left_out: Vec<f64>,
     /// The largest surface rotation (the signed value of largest magnitude). Its σ is its
@@ -285,9 +284,9 @@ impl BackAnalysis {
     /// Whether the symmetry line holds at fewer than half the levels where the back is
     /// measured ([`Self::levels_left_out`]): its measures then describe a small part of the
     /// back, perhaps along a false axis. On the real backs standing square to the camera it held
-    /// at 54 % of them or more on every lattice placement; turned by 3.5-5° from the camera, where
-    /// the line was lost, at 31-35 %. A symptom, not a proof: turned by 7°, one of them held a
-    /// false axis at 14 of its 26 levels, so the subject must still face the camera.
+    /// at 54 % of them or more on every lattice placement. A symptom, not a proof: turned by 5°
+    /// from the camera, one of them held a false axis at 20 of its 26 levels, so the subject
+    /// must still face the camera.
     pub fn line_mostly_lost(&self) -> bool {
         self.levels.len() < self.levels_left_out.len()
     }
