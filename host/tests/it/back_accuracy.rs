@@ -255,6 +255,22 @@ fn swayed_frames_combine() {
     assert!(e.rotation.rms() < one.rotation.rms() && e.symmetry_x.rms() < one.symmetry_x.rms());
 }
 
+/// A subject standing turned about the vertical by 3.5° (the stance limit the real backs set)
+/// and by 7°, either way: the back model's truth turns with it, and every bar holds against it
+/// (the real backs: `back_real`'s turned backs).
+#[test]
+fn turned_stance() {
+    for (k, degrees) in [-7.0_f64, -3.5, 3.5, 7.0].into_iter().enumerate() {
+        let model = BackModel::standing(Deformity::double()).with_pose(Pose {
+            rotation: Vector3::new(0.0, degrees.to_radians(), 0.0),
+            translation: Vector3::zeros(),
+        });
+        let seed = 14000 + 100 * k as u64;
+        let e = scans(&[model], SPACING, DRAWS, seed, &Options::standing());
+        check(&format!("double curve turned {degrees:+}°"), &e);
+    }
+}
+
 /// `--vertical`: the back seen by a camera rolled 10° about its axis, analysed with the vertical
 /// rolled with it, gives the upright camera's symmetry line and rotation at every level (to
 /// 0.2 mm and 0.05°); left at +y, the trunk imbalance is off by tens of mm.
