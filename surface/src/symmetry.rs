@@ -45,13 +45,25 @@ fn reflection(theta: f64) -> (Matrix2<f64>, Matrix2<f64>) {
     (m, dm)
 }
 
+/// The sample at offset `t` of the section at level v, mirrored by `m` about its point `p`:
+/// the sample, its image and the image's miss r = s(image's a) − image's n.
+fn mirrored(
+    fit: &Fit,
+    v: f64,
+    (p, m): (Vector2<f64>, &Matrix2<f64>),
+    t: f64,
+) -> Option<(Vector2<f64>, Vector2<f64>, f64)> {
+    let q = Vector2::new(p.x + t, fit.value(p.x + t, v, D::S)?);
+    let image = p + m * (q - p);
+    Some((q, image, fit.value(image.x, v, D::S)? - image.y))
+}
+
 /// The residual of the sample at offset `t` (signed) for the axis (x, θ) at level v.
 fn residual(fit: &Fit, v: f64, x: f64, theta: f64, t: f64) -> Option<Residual> {
     let (m, dm) = reflection(theta);
     let s = |a: f64, d: D| fit.value(a, v, d);
     let p = Vector2::new(x, s(x, D::S)?);
-    let q = Vector2::new(x + t, s(x + t, D::S)?);
-    let image = p + m * (q - p);
+    let (q, image, r) = mirrored(fit, v, (p, &m), t)?;
     let slope = s(image.x, D::A)?;
     let miss = |d: Vector2<f64>| slope * d.x - d.y;
     let dp = Vector2::new(1.0, s(x, D::A)?);
@@ -61,7 +73,7 @@ fn residual(fit: &Fit, v: f64, x: f64, theta: f64, t: f64) -> Option<Residual> {
     let dtheta = dm * (q - p);
     let n = Vector2::new(0.0, 1.0);
     Some(Residual {
-        r: s(image.x, D::S)? - image.y,
+        r,
         jp: Vector2::new(miss(dx), miss(dtheta)),
         terms: [
             (image.x, D::S, 1.0),
@@ -100,10 +112,11 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 /// blind to a turn of the section), per unit weight, and the slope there.
 fn normal_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
     let slope = fit.value(x, v, D::A)?;
-    let theta = slope.atan();
+    let (m, _) = reflection(slope.atan());
+    let p = Vector2::new(x, fit.value(x, v, D::S)?);
     let (mut rr, mut total) = (0.0, 0.0);
     for (t, wt) in offsets(w) {
-        let r = residual(fit, v, x, theta, t)?.r;
+        let (_, _, r) = mirrored(fit, v, (p, &m), t)?;
         rr += wt * r * r;
         total += wt;
     }

@@ -20,7 +20,7 @@ type Kept = fn(&Vector3<f64>) -> bool;
 /// A cloud of `model` as a deltaz PLY (camera system, each point's σ, ray ids by lattice node),
 /// its dots 20 mm apart.
 fn write_cloud(path: &Path, model: &BackModel, frame: &str, seed: u64) {
-    write_cloud_at(path, model, frame, seed, (20.0, |_| true));
+    write_cloud_at(path, model, frame, seed, 20.0, |_| true);
 }
 
 /// One with its dots `spacing` apart, of which those whose true point `kept` keeps.
@@ -29,7 +29,8 @@ fn write_cloud_at(
     model: &BackModel,
     frame: &str,
     seed: u64,
-    (spacing, kept): (f64, Kept),
+    spacing: f64,
+    kept: Kept,
 ) {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, SIGMA).unwrap();
@@ -170,7 +171,8 @@ fn analyse_back_writes_its_report_and_compares() {
         &model,
         "the camera system",
         5,
-        (15.0, |_| true),
+        15.0,
+        |_| true,
     );
     json(&deltaz_in(
         d,
@@ -302,13 +304,7 @@ fn analyse_back_states_where_the_line_is_not_found() {
     ];
     for (k, (kept, [y0, y1], lost)) in cases.into_iter().enumerate() {
         let cloud = format!("cut{k}.ply");
-        write_cloud_at(
-            &d.join(&cloud),
-            &model,
-            "the camera system",
-            7,
-            (20.0, kept),
-        );
+        write_cloud_at(&d.join(&cloud), &model, "the camera system", 7, 20.0, kept);
         let dir = format!("c{k}");
         let out = deltaz_in(
             d,
