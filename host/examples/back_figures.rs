@@ -28,7 +28,7 @@ fn main() {
         let mut errors = IndexErrors::default();
         let mut refused = 0;
         for k in 0..draws {
-            match scanned(&dots, &Noise::issue(), 1 + k, options) {
+            match scanned(&dots, true, &Noise::issue(), 1 + k, options) {
                 Ok(a) => errors.add(&model, &a),
                 Err(_) => refused += 1,
             }

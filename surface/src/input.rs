@@ -13,8 +13,10 @@ pub struct ScanPoint {
     /// Its own covariance (mm²): the share independent from point to point.
     pub covariance: Matrix3<f64>,
     /// Its ray's node (column, row) in the projector's lattice: neighbouring nodes make the
-    /// mesh's triangles.
-    pub ray: [i32; 2],
+    /// mesh's triangles. None for a point from elsewhere (a frame's points all have one or
+    /// none): the mesh is then the Delaunay triangulation of the points' directions from the
+    /// camera.
+    pub ray: Option<[i32; 2]>,
 }
 
 /// The calibration's error common to all points of a frame (and to every frame measured with
@@ -128,7 +130,17 @@ impl Frame {
         }
         let mut seen = HashMap::new();
         for (i, p) in self.points.iter().enumerate() {
-            if let Some(first) = seen.insert(p.ray, i) {
+            if p.position.z >= 0.0 {
+                return Err(bad(
+                    i,
+                    "it lies behind the camera (z ≥ 0; the camera system's z points toward the \
+                     camera)",
+                ));
+            }
+            if p.ray.is_some() != self.points[0].ray.is_some() {
+                return Err(bad(i, "the frame mixes points with and without their rays"));
+            }
+            if let Some(first) = p.ray.and_then(|ray| seen.insert(ray, i)) {
                 return Err(bad(
                     i,
                     &format!("its ray {:?} is point {first}'s too", p.ray),

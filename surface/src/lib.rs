@@ -2,8 +2,9 @@
 //! scoliosis screening reads, each with its σ.
 //!
 //! From each frame's points ([`Frame`]: positions in the camera system, each point's
-//! covariance, the calibration's common share), a mesh over the projector lattice finds the
-//! back (the largest connected piece; occlusions and depth jumps leave holes), one smooth
+//! covariance, the calibration's common share), a mesh over the projector lattice (or, for
+//! points without their rays, over what the camera sees: [`mesh`]) finds the back (the
+//! largest connected piece; occlusions and depth jumps leave holes), one smooth
 //! surface is fitted to all frames of a subject with the frames registered onto the first
 //! ([`fit`]), and [`analyse`] measures it: the symmetry line ([`symmetry`]), the surface
 //! rotation along it, its lateral deviation, trunk imbalance and inclination, skin angles,

@@ -1,5 +1,6 @@
 //! A mesh over the projector lattice: the points of neighbouring rays make triangles, an
 //! occlusion or a depth jump leaves a hole, and the back is the largest connected piece.
+//! Points without their rays are meshed by the Delaunay triangulation of what the camera sees.
 
 use nalgebra::Vector3;
 use std::collections::HashMap;
@@ -28,8 +29,8 @@ const CREASE: f64 = 45.0 * std::f64::consts::PI / 180.0;
 
 impl Mesh {
     /// Each lattice cell whose corners were measured makes two triangles (split along the
-    /// shorter diagonal); triangles with an edge beyond [`JUMP`] × the median edge or seen
-    /// more obliquely than [`OBLIQUE`] from the camera (at the origin) are left out.
+    /// shorter diagonal); the median lattice edge is the spacing ([`Mesh::kept`] leaves out
+    /// jumps and oblique triangles).
     pub fn over_lattice(points: &[Vector3<f64>], rays: &[[i32; 2]]) -> Self {
         let node: HashMap<[i32; 2], usize> =
             rays.iter().enumerate().map(|(i, r)| (*r, i)).collect();
@@ -40,40 +41,69 @@ impl Mesh {
                 edges.push((points[n] - points[k]).norm());
             }
         }
-        edges.sort_by(f64::total_cmp);
-        let spacing = edges.get(edges.len() / 2).copied().unwrap_or(0.0);
-        let longest = |t: &[usize; 3]| {
-            let e = |a: usize, b: usize| (points[t[a]] - points[t[b]]).norm();
-            e(0, 1).max(e(1, 2)).max(e(2, 0))
-        };
-        let mut triangles = Vec::new();
+        let mut candidates = Vec::new();
         for &[i, j] in rays {
             let corners = (at(i, j), at(i + 1, j), at(i, j + 1), at(i + 1, j + 1));
-            let candidates = match corners {
+            match corners {
                 (Some(a), Some(b), Some(c), Some(d)) => {
                     if (points[a] - points[d]).norm() <= (points[b] - points[c]).norm() {
-                        vec![[a, b, d], [a, d, c]]
+                        candidates.extend([[a, b, d], [a, d, c]]);
                     } else {
-                        vec![[a, b, c], [b, d, c]]
+                        candidates.extend([[a, b, c], [b, d, c]]);
                     }
                 }
-                (Some(a), Some(b), Some(c), None) => vec![[a, b, c]],
-                (Some(a), Some(b), None, Some(d)) => vec![[a, b, d]],
-                (Some(a), None, Some(c), Some(d)) => vec![[a, d, c]],
-                (None, Some(b), Some(c), Some(d)) => vec![[b, d, c]],
-                _ => vec![],
-            };
-            let facing = |t: &[usize; 3]| {
-                let [a, b, c] = t.map(|k| points[k]);
-                let normal = (b - a).cross(&(c - a));
-                let sight = (a + b + c).normalize();
-                normal.dot(&sight).abs() >= OBLIQUE.cos() * normal.norm()
-            };
-            let kept = candidates
-                .into_iter()
-                .filter(|t| longest(t) <= JUMP * spacing && facing(t));
-            triangles.extend(kept);
+                (Some(a), Some(b), Some(c), None) => candidates.push([a, b, c]),
+                (Some(a), Some(b), None, Some(d)) => candidates.push([a, b, d]),
+                (Some(a), None, Some(c), Some(d)) => candidates.push([a, d, c]),
+                (None, Some(b), Some(c), Some(d)) => candidates.push([b, d, c]),
+                _ => {}
+            }
         }
+        Self::kept(points, candidates, median(edges))
+    }
+
+    /// Points without their rays (a cloud from another scanner) make the Delaunay triangles of
+    /// their directions from the camera (at the origin, looking along −z: every point has
+    /// z < 0); the spacing is the median of the triangles' two shorter edges, a lattice's edges
+    /// without its cells' diagonals. [`Mesh::kept`] leaves out the long triangles across holes
+    /// and around the outline, and the oblique ones.
+    pub fn over_directions(points: &[Vector3<f64>]) -> Self {
+        let seen: Vec<delaunator::Point> = points
+            .iter()
+            .map(|p| delaunator::Point {
+                x: p.x / -p.z,
+                y: p.y / -p.z,
+            })
+            .collect();
+        let candidates: Vec<[usize; 3]> = delaunator::triangulate(&seen)
+            .triangles
+            .chunks_exact(3)
+            .map(|t| [t[0], t[1], t[2]])
+            .collect();
+        // A lattice's triangles are half cells: their two shorter edges are its edges.
+        let edges = candidates
+            .iter()
+            .flat_map(|t| {
+                let [a, b, _] = sides(points, t);
+                [a, b]
+            })
+            .collect();
+        Self::kept(points, candidates, median(edges))
+    }
+
+    /// The `candidates` without those with an edge beyond [`JUMP`] × `spacing` or seen more
+    /// obliquely than [`OBLIQUE`] from the camera (at the origin).
+    fn kept(points: &[Vector3<f64>], candidates: Vec<[usize; 3]>, spacing: f64) -> Self {
+        let facing = |t: &[usize; 3]| {
+            let [a, b, c] = t.map(|k| points[k]);
+            let normal = (b - a).cross(&(c - a));
+            let sight = (a + b + c).normalize();
+            normal.dot(&sight).abs() >= OBLIQUE.cos() * normal.norm()
+        };
+        let triangles = candidates
+            .into_iter()
+            .filter(|t| sides(points, t)[2] <= JUMP * spacing && facing(t))
+            .collect();
         Self {
             triangles,
             spacing,
@@ -134,4 +164,18 @@ impl Mesh {
         let kept = vertices(best);
         (kept, best.iter().map(|&k| t[k]).collect())
     }
+}
+
+/// The median of `values` (0 without any).
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// The lengths of triangle `t`'s edges, shortest first.
+fn sides(points: &[Vector3<f64>], t: &[usize; 3]) -> [f64; 3] {
+    let e = |a: usize, b: usize| (points[t[a]] - points[t[b]]).norm();
+    let mut s = [e(0, 1), e(1, 2), e(2, 0)];
+    s.sort_by(f64::total_cmp);
+    s
 }

@@ -21,14 +21,19 @@ pub enum What {
     /// virtual scoliometer; every measure with its σ. Surface measurements, not a diagnosis.
     Back {
         /// A point cloud (PLY of `scan`, `reconstruct` or `device stream`, in the camera
-        /// system); repeat for several frames (a cloud with a `frame` property holds several).
+        /// system; or a cloud from elsewhere, x y z in mm in the camera system, its points then
+        /// meshed over what the camera sees); repeat for several frames (a cloud with a `frame`
+        /// property holds several).
         #[arg(long = "cloud", required = true)]
         clouds: Vec<PathBuf>,
         /// The system the clouds were measured with (system.json of `calibrate system`): each
         /// point's covariance, the calibration's common share included. Without it the clouds'
         /// own σ (a `sigma_*` property) is used.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "sigma")]
         system: Option<PathBuf>,
+        /// For clouds that carry no σ (from elsewhere): each point's σ on each axis, mm.
+        #[arg(long, value_name = "MM")]
+        sigma: Option<f64>,
         /// Output folder: analysis.json and report.html.
         #[arg(long)]
         out: PathBuf,
@@ -79,6 +84,7 @@ pub fn exec(what: What) -> Result<()> {
         What::Back {
             clouds,
             system,
+            sigma,
             out,
             posture,
             vertical,
@@ -91,7 +97,7 @@ pub fn exec(what: What) -> Result<()> {
             };
             options.vertical = vertical.map(Vector3::from);
             let progress = output.progress(format!("analysing {} clouds", clouds.len()));
-            let report = analyse_clouds(&clouds, system.as_deref(), &options)?;
+            let report = analyse_clouds(&clouds, system.as_deref(), sigma, &options)?;
             progress.finish_and_clear();
             let json = serde_json::to_string_pretty(&report)? + "\n";
             let html = report_html(&report)?;
@@ -111,6 +117,9 @@ pub fn exec(what: What) -> Result<()> {
             );
             for (name, value, sigma, unit) in indices(a) {
                 text += &format!("  {name}: {} {unit}\n", plus_minus(value, sigma));
+            }
+            for note in &report.notes {
+                output.status(format!("note: {note}"));
             }
             if let Some(note) = line_note(a) {
                 output.status(format!("note: {note}"));

@@ -162,7 +162,8 @@ pub struct Vertex {
 
 /// Reads a PLY cloud: ASCII or binary little endian vertices of scalar properties (x, y, z and
 /// any others; deltaz's `ray_id`, `frame` and `sigma_*` are kept), the vertex count checked
-/// against the file's size before anything is allocated.
+/// against the file's size before anything is allocated. Elements after the vertices (a mesh's
+/// faces) are not read.
 pub fn read_cloud(path: &Path) -> Result<Cloud> {
     let bytes = std::fs::read(path).map_err(|e| FileError::whole(path, e.to_string()))?;
     let end = bytes
@@ -176,6 +177,8 @@ pub fn read_cloud(path: &Path) -> Result<Cloud> {
     let mut ascii = None;
     let mut count = None;
     let mut properties: Vec<(String, &str)> = Vec::new();
+    // Whether the header's lines are the vertex element's (not a later one's: a mesh's faces).
+    let mut in_vertex = false;
     for (index, line) in header.lines().enumerate() {
         let at = |problem: String| FileError::at(path, index + 1, problem);
         let words: Vec<&str> = line.split_whitespace().collect();
@@ -189,9 +192,12 @@ pub fn read_cloud(path: &Path) -> Result<Cloud> {
                 count = Some(
                     n.parse::<usize>()
                         .map_err(|_| at(format!("vertex count {n:?}")))?,
-                )
+                );
+                in_vertex = true;
             }
-            ["element", ..] => return Err(at("only a single `vertex` element is read".into())),
+            ["element", ..] if count.is_some() => in_vertex = false,
+            ["element", ..] => return Err(at("the `vertex` element must come first".into())),
+            ["property", ..] if !in_vertex => {}
             ["property", "list", ..] => return Err(at("list properties are not read".into())),
             ["property", kind, name] => {
                 scalar_size(kind).ok_or_else(|| at(format!("property type {kind:?}")))?;
@@ -434,6 +440,32 @@ mod tests {
             let e = read_points(&path).unwrap_err().to_string();
             assert!(e.contains("c.ply") && e.contains("vert"), "{e}");
         }
+    }
+
+    /// A mesh's faces after its vertices are not read; an element before them is refused.
+    #[test]
+    fn a_mesh_reads_its_vertices() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.ply");
+        let mut bytes =
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n\
+            property float y\nproperty float z\nelement face 1\nproperty list uchar int \
+            vertex_indices\nend_header\n"
+                .to_vec();
+        for v in [1.5f32, -2.0, -900.25] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        bytes.extend_from_slice(&[3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+        std::fs::write(&path, &bytes).unwrap();
+        let cloud = read_cloud(&path).unwrap();
+        let points: Vec<_> = cloud.vertices.iter().map(|v| (v.point, v.ray)).collect();
+        assert_eq!(points, [(Vector3::new(1.5, -2.0, -900.25), None)]);
+        let text =
+            "ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\n\
+                    element vertex 1\nproperty float x\nend_header\n1\n";
+        std::fs::write(&path, text).unwrap();
+        let e = read_cloud(&path).unwrap_err().to_string();
+        assert!(e.contains("m.ply") && e.contains("must come first"), "{e}");
     }
 
     #[test]

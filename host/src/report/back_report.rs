@@ -78,7 +78,7 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         a.fit_chi,
         a.misfit_mm
     );
-    if let Some(note) = line_note(a) {
+    for note in report.notes.iter().cloned().chain(line_note(a)) {
         let _ = writeln!(html, "<p class=\"note\">{}</p>", escape(&note));
     }
     html += "<h2>Measures</h2>\n<table><tr><th>measure</th><th>value ± σ</th></tr>\n";

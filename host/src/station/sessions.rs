@@ -17,7 +17,7 @@ use super::state::KeptFrame;
 use crate::io::analysis_file::read_report;
 use crate::io::ply::{encode_with, CloudInfo, Encoding};
 use crate::report::back_report::{line_note, report_html};
-use crate::workflows::back::{analyse_with, Calibration};
+use crate::workflows::back::{analyse_with, Calibration, PointSigma};
 use anyhow::{bail, Context, Result};
 use deltaz_surface::{compare, Options};
 use serde::{Deserialize, Serialize};
@@ -252,7 +252,7 @@ fn fill(
     }
     std::fs::write(dir.join("centroids.csv"), csv)?;
     let absolute: Vec<PathBuf> = clouds.iter().map(|p| dir.join(p)).collect();
-    let mut report = analyse_with(&absolute, Some(c), options).map_err(|e| {
+    let mut report = analyse_with(&absolute, PointSigma::Calibration(c), options).map_err(|e| {
         // The staging folder's paths mean nothing to the operator.
         let text = format!("{e:#}").replace(&format!("{}/", dir.display()), "");
         anyhow::anyhow!("the burst cannot be analysed: {text}")

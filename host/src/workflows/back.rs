@@ -7,8 +7,11 @@
 //! [`SystemModel::reconstruct_shares`] splits its covariance into the share of its own (image
 //! noise, with the wire's centroid quantisation for device clouds, and its ray's own error) and
 //! the calibration's error common to every point ([`CommonShare::Core`]). Without a system, a
-//! cloud's own `sigma_*` properties give each point's covariance (no common share); a cloud with
-//! neither cannot be analysed honestly and is refused.
+//! cloud's own `sigma_*` properties give each point's covariance, or for a cloud from elsewhere
+//! one σ given for all its points (no common share either way); a cloud with none of these
+//! cannot be analysed honestly and is refused. A cloud from elsewhere may lack the rays (its
+//! surface is then meshed over what the camera sees) and the header's frame (its points are
+//! then taken in the camera system, as the analysis' conventions state, and the report says so).
 
 use crate::io::analysis_file::{BackReport, ANALYSIS_FORMAT};
 use crate::io::ply::{read_cloud, Cloud};
@@ -22,6 +25,17 @@ use deltaz_surface::{analyse, CommonShare, Frame, Options, ScanPoint};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// Where the points' covariance comes from.
+#[derive(Clone, Copy)]
+pub enum PointSigma<'a> {
+    /// The calibration the clouds were measured with (`--system`), its common share included.
+    Calibration(&'a Calibration),
+    /// The clouds' own `sigma_*` properties.
+    Own,
+    /// One σ (mm) on each axis for every point of clouds that carry none (`--sigma`).
+    Given(f64),
+}
 
 /// The calibration a cloud's covariance comes from.
 pub struct Calibration {
@@ -115,13 +129,15 @@ fn lattice_node(id: u16) -> [i32; 2] {
     [i32::from(id % ID_STRIDE), i32::from(id / ID_STRIDE)]
 }
 
-/// The frames of the clouds at `paths`, each point with its covariance.
-pub fn frames(paths: &[PathBuf], calibration: Option<&Calibration>) -> Result<Vec<Frame>> {
+/// The frames of the clouds at `paths`, each point with its covariance from `sigma`, and what
+/// was assumed of the clouds (a cloud that does not say its frame).
+pub fn frames(paths: &[PathBuf], sigma: PointSigma) -> Result<(Vec<Frame>, Vec<String>)> {
     let mut frames = Vec::new();
+    let mut notes = Vec::new();
     let mut fingerprint: Option<(String, &Path)> = None;
     for path in paths {
         let cloud = read_cloud(path)?;
-        check_cloud(path, &cloud)?;
+        notes.extend(check_frame(path, &cloud)?);
         if let Some(f) = &cloud.fingerprint {
             match &fingerprint {
                 Some((first, at)) if first != f => bail!(
@@ -133,7 +149,7 @@ pub fn frames(paths: &[PathBuf], calibration: Option<&Calibration>) -> Result<Ve
                 _ => fingerprint = Some((f.clone(), path)),
             }
         }
-        if let (Some(c), Some(f)) = (calibration, &cloud.fingerprint) {
+        if let (PointSigma::Calibration(c), Some(f)) = (sigma, &cloud.fingerprint) {
             if c.fingerprint() != f {
                 bail!(
                     "{}: measured with calibration {f}, not the system's {}",
@@ -142,72 +158,76 @@ pub fn frames(paths: &[PathBuf], calibration: Option<&Calibration>) -> Result<Ve
                 );
             }
         }
-        frames.extend(cloud_frames(path, &cloud, calibration)?);
+        frames.extend(cloud_frames(path, &cloud, sigma)?);
     }
-    Ok(frames)
+    Ok((frames, notes))
 }
 
 /// The frames of one cloud (`path` names it): one per `frame` value (the whole cloud without
-/// it), in the order of the values, each point with its covariance.
-pub fn cloud_frames(
-    path: &Path,
-    cloud: &Cloud,
-    calibration: Option<&Calibration>,
-) -> Result<Vec<Frame>> {
+/// it), in the order of the values, each point with its covariance from `sigma`.
+pub fn cloud_frames(path: &Path, cloud: &Cloud, sigma: PointSigma) -> Result<Vec<Frame>> {
     let mut split: BTreeMap<u32, Vec<_>> = BTreeMap::new();
     for v in &cloud.vertices {
         split.entry(v.frame.unwrap_or(0)).or_default().push(*v);
     }
     split
         .into_values()
-        .map(|vertices| match calibration {
-            Some(c) => with_calibration(&vertices, cloud.centroid_step_px, c)
+        .map(|vertices| match sigma {
+            PointSigma::Calibration(c) => with_calibration(&vertices, cloud.centroid_step_px, c)
                 .with_context(|| path.display().to_string()),
-            None => with_own_sigma(path, &vertices),
+            PointSigma::Own => with_sigma(path, &vertices, None),
+            PointSigma::Given(s) => with_sigma(path, &vertices, Some(s)),
         })
         .collect()
 }
 
-/// A cloud must be in the camera system and label its points by ray.
-fn check_cloud(path: &Path, cloud: &Cloud) -> Result<()> {
+/// A cloud's points must be in the camera system: a cloud that names another frame is refused;
+/// one that names none (a cloud from elsewhere) is taken in it, and the note returned says so.
+fn check_frame(path: &Path, cloud: &Cloud) -> Result<Option<String>> {
     let camera = SystemFrame::Camera.to_string();
     match cloud.frame.as_deref() {
-        Some(frame) if frame == camera => {}
+        Some(frame) if frame == camera => Ok(None),
         Some(frame) => bail!(
             "{}: its points are in {frame}: the back analysis needs {camera} (x right, y up, z \
              toward the camera)",
             path.display()
         ),
-        None => bail!(
-            "{}: the cloud does not say its frame (a deltaz cloud's header does): the back \
-             analysis needs {camera}",
+        None => Ok(Some(format!(
+            "{} does not say its frame (a deltaz cloud's header does): its points are taken in \
+             {camera} (mm; x right, y up, z toward the camera, which is at the origin)",
             path.display()
-        ),
+        ))),
     }
-    if cloud.vertices.iter().any(|v| v.ray.is_none()) {
-        bail!(
-            "{}: the points carry no `ray_id`: the surface is meshed over the projector's lattice",
-            path.display()
-        );
-    }
-    Ok(())
 }
 
-fn with_own_sigma(path: &Path, vertices: &[crate::io::ply::Vertex]) -> Result<Frame> {
+/// A frame of `vertices` with each point's own σ, or `given` for points without one.
+fn with_sigma(
+    path: &Path,
+    vertices: &[crate::io::ply::Vertex],
+    given: Option<f64>,
+) -> Result<Frame> {
     let points = vertices
         .iter()
         .map(|v| {
-            let sigma = v.sigma.with_context(|| {
-                format!(
-                    "{}: the points carry no σ: give --system system.json (of `calibrate \
-                     system`) for their covariance",
+            let sigma = match (v.sigma, given) {
+                (Some(own), None) => own,
+                (None, Some(s)) => Vector3::repeat(s),
+                (Some(_), Some(_)) => bail!(
+                    "{}: the points carry their own σ (sigma_x, sigma_y, sigma_z): --sigma is \
+                     for clouds without",
                     path.display()
-                )
-            })?;
+                ),
+                (None, None) => bail!(
+                    "{}: the points carry no σ: give --system system.json (of `calibrate \
+                     system`) for their covariance, or for a cloud from elsewhere --sigma MM, \
+                     its points' σ",
+                    path.display()
+                ),
+            };
             Ok(ScanPoint {
                 position: v.point,
                 covariance: Matrix3::from_diagonal(&sigma.component_mul(&sigma)),
-                ray: lattice_node(v.ray.unwrap_or_default()),
+                ray: v.ray.map(lattice_node),
             })
         })
         .collect::<Result<Vec<_>>>()?;
@@ -228,7 +248,10 @@ pub fn with_calibration(
     let mut sensitivity = DMatrix::zeros(3 * vertices.len(), k);
     let mut points = Vec::with_capacity(vertices.len());
     for (i, v) in vertices.iter().enumerate() {
-        let id = v.ray.unwrap_or_default();
+        let id = v.ray.context(
+            "the points carry no `ray_id`: the calibration gives a point's covariance through \
+             its ray",
+        )?;
         let shares = c.shares(id, &v.point)?;
         sensitivity
             .view_mut((3 * i, 0), (3, k))
@@ -236,7 +259,7 @@ pub fn with_calibration(
         points.push(ScanPoint {
             position: v.point,
             covariance: shares.image * quantised + shares.ray,
-            ray: lattice_node(id),
+            ray: Some(lattice_node(id)),
         });
     }
     let fingerprint = u64::from_str_radix(c.fingerprint(), 16).ok();
@@ -250,60 +273,71 @@ pub fn with_calibration(
     })
 }
 
-/// `deltaz analyse back`: the clouds at `paths` (with `system` for their covariance) analysed
-/// with `options`.
+/// `deltaz analyse back`: the clouds at `paths` analysed with `options`, their points'
+/// covariance from `system` (its path) or one σ `given` for all (or else their own).
 pub fn analyse_clouds(
     paths: &[PathBuf],
     system: Option<&Path>,
+    given: Option<f64>,
     options: &Options,
 ) -> Result<BackReport> {
     let calibration = system.map(Calibration::load).transpose()?;
-    analyse_with(paths, calibration.as_ref(), options)
+    let sigma = match (&calibration, given) {
+        (Some(c), None) => PointSigma::Calibration(c),
+        (None, Some(s)) if s > 0.0 && s.is_finite() => PointSigma::Given(s),
+        (None, Some(s)) => bail!("--sigma {s}: a point's σ is a positive number of mm"),
+        (None, None) => PointSigma::Own,
+        (Some(_), Some(_)) => bail!("give --system or --sigma, not both"),
+    };
+    analyse_with(paths, sigma, options)
 }
 
-/// [`analyse_clouds`] with the calibration loaded.
-pub fn analyse_with(
-    paths: &[PathBuf],
-    calibration: Option<&Calibration>,
-    options: &Options,
-) -> Result<BackReport> {
+/// [`analyse_clouds`] with the points' covariance from `sigma`.
+pub fn analyse_with(paths: &[PathBuf], sigma: PointSigma, options: &Options) -> Result<BackReport> {
     if paths.is_empty() {
         bail!("give at least one --cloud");
     }
-    let frames = frames(paths, calibration)?;
+    let (frames, notes) = frames(paths, sigma)?;
     let analysis = analyse(&frames, options).map_err(|e| {
         let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
         anyhow::anyhow!("{}: {e}", names.join(", "))
     })?;
-    let fingerprint = match calibration {
-        Some(c) => Some(c.fingerprint().to_owned()),
-        None => read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint),
+    let fingerprint = match sigma {
+        PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
+        _ => read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint),
     };
-    Ok(back_report(paths, calibration, fingerprint, analysis))
+    Ok(BackReport {
+        notes,
+        ..back_report(paths, sigma, fingerprint, analysis)
+    })
 }
 
-/// The report of an analysis of the clouds at `paths` (what `analysis.json` holds): the
-/// calibration that gave the points' covariance, or none (the clouds' own σ).
+/// The report of an analysis of the clouds at `paths` (what `analysis.json` holds), with where
+/// the points' covariance came from (`sigma`).
 pub fn back_report(
     paths: &[PathBuf],
-    calibration: Option<&Calibration>,
+    sigma: PointSigma,
     fingerprint: Option<String>,
     analysis: deltaz_surface::BackAnalysis,
 ) -> BackReport {
-    let covariance = match calibration {
-        Some(c) => format!(
+    let no_common = "no share common to all points: give --system for it";
+    let covariance = match sigma {
+        PointSigma::Calibration(c) => format!(
             "the calibration's covariance (system {}): image noise, each ray's own error and \
              the share common to all points",
             c.fingerprint()
         ),
-        None => "the clouds' own σ per axis (no share common to all points: give --system for it)"
-            .to_owned(),
+        PointSigma::Own => format!("the clouds' own σ per axis ({no_common})"),
+        PointSigma::Given(s) => {
+            format!("σ {s} mm on each axis for every point, as given ({no_common})")
+        }
     };
     BackReport {
         format: ANALYSIS_FORMAT.to_owned(),
         clouds: paths.to_vec(),
         fingerprint,
         covariance,
+        notes: Vec::new(),
         analysis,
     }
 }

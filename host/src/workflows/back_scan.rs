@@ -5,7 +5,7 @@
 //! calibration ([`super::back::cloud_frames`]), and one subject's frames analysed together
 //! ([`deltaz_surface::analyse`]).
 
-use super::back::{cloud_frames, Calibration};
+use super::back::{cloud_frames, Calibration, PointSigma};
 use super::scan::{scan, FramePoints, Identified};
 use crate::io::ply::{Cloud, Vertex};
 use crate::io::system_file::SystemFrame;
@@ -75,7 +75,11 @@ pub fn scan_back(
         },
     )?;
     let cloud = cloud_of(&frames, calibration.fingerprint(), centroid_step_px);
-    let surface = cloud_frames(Path::new(name), &cloud, Some(calibration))?;
+    let surface = cloud_frames(
+        Path::new(name),
+        &cloud,
+        PointSigma::Calibration(calibration),
+    )?;
     let analysis = analyse(&surface, options).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     Ok(ScannedBack {
         frames,

@@ -359,3 +359,97 @@ fn analyse_back_states_where_the_line_is_not_found() {
         "{stderr}"
     );
 }
+
+/// A cloud from elsewhere: x y z only (no frame in its header, no rays, no σ), as another
+/// scanner or another back model writes it, here as a mesh whose faces are not read. With --sigma it is analysed (meshed over what the
+/// camera sees) and the report says its frame was taken to be the camera system; without a σ,
+/// behind the camera, or given a σ it already has, it is refused.
+#[test]
+fn analyse_back_reads_a_cloud_from_elsewhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BackModel::standing(Deformity::thoracic());
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let noise = Normal::new(0.0, SIGMA).unwrap();
+    let points: Vec<Vector3<f64>> = model
+        .sample(&Lattice::beside_camera(20.0))
+        .iter()
+        .map(|d| d.hit.point + Vector3::from_fn(|_, _| noise.sample(&mut rng)))
+        .collect();
+    let plain = |points: &[Vector3<f64>]| {
+        let mut text = format!(
+            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+             property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+             end_header\n",
+            points.len()
+        );
+        for p in points {
+            text += &format!("{:.3} {:.3} {:.3}\n", p.x, p.y, p.z);
+        }
+        text + "3 0 1 2\n"
+    };
+    std::fs::write(d.join("plain.ply"), plain(&points)).unwrap();
+    let out = deltaz_in(
+        d,
+        &[
+            "analyse",
+            "back",
+            "--cloud",
+            "plain.ply",
+            "--sigma",
+            "0.4",
+            "--out",
+            "a",
+            "--json",
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let analysed = json(&out);
+    let assumed = "plain.ply does not say its frame";
+    assert!(stderr.contains(assumed), "{stderr}");
+    let notes = analysed["notes"].as_array().unwrap();
+    assert!(notes.len() == 1 && notes[0].as_str().unwrap().contains(assumed));
+    assert!(analysed["covariance"]
+        .as_str()
+        .unwrap()
+        .contains("σ 0.4 mm"));
+    let html = std::fs::read_to_string(d.join("a/report.html")).unwrap();
+    assert!(html.contains(assumed));
+    // The line against the truth (6σ: a gross check, as above).
+    let axes = deltaz_host::simulate::back::Axes::camera();
+    let levels = analysed["levels"].as_array().unwrap();
+    assert!(levels.len() > 15, "{} levels", levels.len());
+    for level in levels {
+        let (x, _) = model
+            .symmetry_point(&axes, level["y"].as_f64().unwrap())
+            .unwrap();
+        let error = level["symmetry_x"].as_f64().unwrap() - x;
+        let sigma = level["symmetry_x_sigma"].as_f64().unwrap();
+        assert!(error.abs() < 6.0 * sigma, "{level}");
+    }
+    // Refused: no σ; a σ it already has (a deltaz cloud's); points behind the camera; a σ of
+    // nought. Nothing written.
+    write_cloud(&d.join("own.ply"), &model, "the camera system", 1);
+    let behind: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| Vector3::new(p.x, p.y, -p.z))
+        .collect();
+    std::fs::write(d.join("behind.ply"), plain(&behind)).unwrap();
+    let cases: [(&str, &[&str], &str); 4] = [
+        ("plain.ply", &[], "--sigma MM"),
+        ("own.ply", &["--sigma", "0.4"], "carry their own σ"),
+        ("behind.ply", &["--sigma", "0.4"], "behind the camera"),
+        ("plain.ply", &["--sigma", "0"], "positive"),
+    ];
+    for (cloud, extra, expect) in cases {
+        let mut args = vec!["analyse", "back", "--cloud", cloud, "--out", "x"];
+        args.extend(extra);
+        let out = deltaz_in(d, &args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(expect),
+            "{cloud}: {err}"
+        );
+        assert!(!d.join("x").exists(), "{cloud}: nothing written");
+    }
+}

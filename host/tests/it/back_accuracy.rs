@@ -6,7 +6,9 @@
 //! four bent forward, and three swayed frames combined. Every σ is checked by the RMS of
 //! error/σ over the draws (0.8-1.25), the symmetry line's where the body's detail is resolved.
 
-use crate::back_sim::{check_accuracy, check_line_and_rotation, scans, IndexErrors};
+use crate::back_sim::{
+    check_accuracy, check_line_and_rotation, scanner_dots, scans, scans_of, IndexErrors,
+};
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_surface::Options;
 use nalgebra::Vector3;
@@ -151,6 +153,37 @@ fn double_curve_standing() {
         "double",
         &standing(Deformity::double(), Trunk::default(), 4000),
     );
+}
+
+/// A cloud from elsewhere: the double curve where another scanner's camera looks (directions
+/// 20 mm apart at the back, each jittered by up to 3 mm: no lattice), its points without rays,
+/// so the surface is meshed over what the camera sees (the Delaunay triangulation of the
+/// points' directions). Standing and bent forward the issue's bars hold (measured: line
+/// 0.66/0.60 mm, z 1.05/0.97; rotation 0.28/0.28°, z 1.03/1.16; the scoliometer 0.36°, z 1.36,
+/// reported). On a regular grid all hold at z 0.97-1.08 (the scoliometer's 1.08); jittered by
+/// up to 6 mm, bent forward the rotation's σ does not (z 1.65, the scoliometer's 1.90, with or
+/// without the rays): the errors grow with the sampling's irregularity, which the sampling
+/// terms (from the fit's misfit, unchanged by it) do not see.
+#[test]
+fn a_cloud_from_elsewhere() {
+    for (model, options, seed) in [
+        (
+            BackModel::standing(Deformity::double()),
+            Options::standing(),
+            8000,
+        ),
+        (
+            BackModel::forward_bent(Deformity::double()),
+            Options::forward_bent(),
+            9000,
+        ),
+    ] {
+        let what = format!("{}, a cloud from elsewhere", model.deformity.name);
+        let dots = [scanner_dots(&model, SPACING, seed)];
+        let e = scans_of(&[model], &dots, false, DRAWS, seed, &options);
+        check(&what, &e);
+        assert!(e.atr.rms() <= 0.5, "{what}: ATR RMS {:.3}°", e.atr.rms());
+    }
 }
 
 #[test]
@@ -374,7 +407,7 @@ fn double_curve_scans_compare_like_for_like() {
     };
     let dots = [back_dots(&model, SPACING)];
     let noise = Noise::issue();
-    let scan = |k: u64| scanned(&dots, &noise, 4000 + k, &Options::standing()).unwrap();
+    let scan = |k: u64| scanned(&dots, true, &noise, 4000 + k, &Options::standing()).unwrap();
     let (mut sign_changes, mut changes) = (0, Errors::default());
     for pair in 0..6 {
         let (a, b) = (scan(2 * pair), scan(2 * pair + 1));

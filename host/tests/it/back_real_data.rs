@@ -56,7 +56,7 @@ pub fn thinned(points: &[Vector3<f64>], spacing: f64, lattice: Lattice, sigma: f
             .map(|(i, ray)| ScanPoint {
                 position: points[i],
                 covariance: Matrix3::identity() * sigma * sigma,
-                ray,
+                ray: Some(ray),
             })
             .collect(),
     )

@@ -82,7 +82,7 @@ pub fn frame(
             ScanPoint {
                 position: p + own + Vector3::new(common[0], common[1], common[2]),
                 covariance: cov,
-                ray: d.ray,
+                ray: Some(d.ray),
             }
         })
         .collect();
@@ -104,6 +104,32 @@ pub fn rng(seed: u64) -> ChaCha8Rng {
 /// The dots a projector lattice `spacing` apart puts on `model`, the back's only.
 pub fn back_dots(model: &BackModel, spacing: f64) -> Vec<LatticeDot> {
     model.sample(&Lattice::beside_camera(spacing))
+}
+
+/// How far another scanner's points lie from a regular grid, in spacings (either way).
+pub const JITTER: f64 = 0.15;
+
+/// The points another scanner gives of `model`: where its camera (at the origin) looks, on a
+/// grid of directions `spacing` apart at 1.5 m, each jittered by up to [`JITTER`] of it (`seed`),
+/// where the line of sight meets the surface within 80° of its normal. Each keeps its grid
+/// node as its ray, for a caller that drops them.
+pub fn scanner_dots(model: &BackModel, spacing: f64, seed: u64) -> Vec<LatticeDot> {
+    let mut r = rng(seed);
+    let jitter = rand_distr::Uniform::new(-JITTER * spacing, JITTER * spacing).unwrap();
+    let n = (450.0 / spacing).floor() as i32;
+    let mut dots = Vec::new();
+    for j in -n..=n {
+        for i in -n..=n {
+            let at = |k: i32, r: &mut ChaCha8Rng| f64::from(k) * spacing + jitter.sample(r);
+            let sight = Vector3::new(at(i, &mut r), at(j, &mut r), -1500.0).normalize();
+            if let Some(hit) = model.hit(&Vector3::zeros(), &sight) {
+                if -hit.normal.dot(&sight) > 80f64.to_radians().cos() {
+                    dots.push(LatticeDot { ray: [i, j], hit });
+                }
+            }
+        }
+    }
+    dots
 }
 
 /// Error and error/σ of an index over draws.
@@ -391,29 +417,45 @@ pub fn scans(
     options: &Options,
 ) -> IndexErrors {
     let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
+    scans_of(models, &dots, true, draws, seed, options)
+}
+
+/// [`scans`] of the `dots` on each of `models`, the points with their rays or without.
+pub fn scans_of(
+    models: &[BackModel],
+    dots: &[Vec<LatticeDot>],
+    rays: bool,
+    draws: u64,
+    seed: u64,
+    options: &Options,
+) -> IndexErrors {
     let noise = Noise::issue();
     let mut errors = IndexErrors::default();
     for k in 0..draws {
-        let a = scanned(&dots, &noise, seed + k, options)
+        let a = scanned(dots, rays, &noise, seed + k, options)
             .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
         errors.add(&models[0], &a);
     }
     errors
 }
 
-/// One draw (`seed`): a frame of each of `dots` with its own noise and the common error, all
-/// analysed together with `options`.
+/// One draw (`seed`): a frame of each of `dots` with its own noise and the common error, its
+/// points with their rays or without, all analysed together with `options`.
 pub fn scanned(
     dots: &[Vec<LatticeDot>],
+    rays: bool,
     noise: &Noise,
     seed: u64,
     options: &Options,
 ) -> Result<BackAnalysis, SurfaceError> {
     let mut r = rng(seed);
     let delta = common_draw(noise, &mut r);
-    let frames: Vec<Frame> = dots
+    let mut frames: Vec<Frame> = dots
         .iter()
         .map(|d| frame(d, noise, &delta, &mut r))
         .collect();
+    for p in frames.iter_mut().flat_map(|f| &mut f.points) {
+        p.ray = p.ray.filter(|_| rays);
+    }
     analyse(&frames, options)
 }

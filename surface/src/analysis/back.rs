@@ -1,4 +1,4 @@
-//! Finding a frame's back (the largest piece of its lattice mesh, checked for a back's shape)
+//! Finding a frame's back (the largest piece of its mesh, checked for a back's shape)
 //! and the analysis axes.
 
 use super::{Axes, Options, Posture, MIN_POINTS, PLANE_RMS_MM};
@@ -19,7 +19,7 @@ pub(super) struct Back {
 /// A frame's back piece: its points, its triangles and the dot spacing.
 type Piece = (Vec<usize>, Vec<[usize; 3]>, f64);
 
-/// The back in a frame: the largest smooth piece of its lattice mesh.
+/// The back in a frame: the largest smooth piece of its mesh.
 pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceError> {
     if frame.points.len() < MIN_POINTS {
         return Err(SurfaceError::TooFewPoints {
@@ -29,8 +29,11 @@ pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceErr
         });
     }
     let positions: Vec<_> = frame.points.iter().map(|p| p.position).collect();
-    let rays: Vec<_> = frame.points.iter().map(|p| p.ray).collect();
-    let mesh = Mesh::over_lattice(&positions, &rays);
+    let rays: Option<Vec<_>> = frame.points.iter().map(|p| p.ray).collect();
+    let mesh = match rays {
+        Some(rays) => Mesh::over_lattice(&positions, &rays),
+        None => Mesh::over_directions(&positions),
+    };
     let (kept, triangles) = mesh.largest_piece();
     if kept.len() < MIN_POINTS {
         return Err(SurfaceError::NoBack {
@@ -113,7 +116,8 @@ pub(super) fn bounds(samples: &[Sample]) -> ([f64; 2], [f64; 2]) {
     )
 }
 
-/// A back is wider and longer than a few dots and far from flat.
+/// A back is wider and longer than a few dots (and than 10 mm: a cloud in metres is not a
+/// back in mm) and far from flat.
 pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
     let points = b.kept.iter().map(|&i| b.positions[i]);
     let (_, rms) = principal(points.clone());
@@ -127,6 +131,15 @@ pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
         hi - lo
     };
     let (width, length) = (extent(0), extent(1));
+    if width.max(length) < 10.0 {
+        return Err(SurfaceError::NoBack {
+            frame,
+            problem: format!(
+                "its surface spans {width:.3} × {length:.3} mm: are its points in metres? The \
+                 analysis reads mm"
+            ),
+        });
+    }
     if width < 8.0 * b.spacing || length < 8.0 * b.spacing {
         return Err(SurfaceError::NoBack {
             frame,

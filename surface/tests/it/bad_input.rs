@@ -11,7 +11,7 @@ fn grid(f: impl Fn(f64, f64) -> f64, n: i32) -> Frame {
             ScanPoint {
                 position: Vector3::new(x, y, f(x, y)),
                 covariance: Matrix3::identity() * 0.16,
-                ray: [i, j],
+                ray: Some([i, j]),
             }
         })
         .collect();
@@ -32,6 +32,17 @@ fn too_few_points() {
 }
 
 #[test]
+fn a_back_in_metres_is_named() {
+    let mut f = grid(back, 12);
+    for p in &mut f.points {
+        p.position /= 1000.0;
+    }
+    let e = analyse(&[f], &Options::standing()).unwrap_err();
+    assert!(matches!(e, SurfaceError::NoBack { .. }), "{e}");
+    assert!(e.to_string().contains("metres"), "{e}");
+}
+
+#[test]
 fn a_plane_is_not_a_back() {
     let e = analyse(&[grid(|x, _| -1500.0 + 0.1 * x, 12)], &Options::standing()).unwrap_err();
     assert!(matches!(e, SurfaceError::Plane { .. }), "{e}");
@@ -42,7 +53,7 @@ fn a_plane_is_not_a_back() {
 fn scattered_points_are_no_back() {
     let mut f = grid(back, 12);
     for (k, p) in f.points.iter_mut().enumerate() {
-        p.ray = [3 * k as i32, 0];
+        p.ray = Some([3 * k as i32, 0]);
     }
     let e = analyse(&[f], &Options::standing()).unwrap_err();
     assert!(matches!(e, SurfaceError::NoBack { .. }), "{e}");
@@ -86,4 +97,15 @@ fn bad_numbers() {
         analyse(&[], &Options::standing()).unwrap_err(),
         SurfaceError::NoFrames
     );
+    // A point behind the camera; a frame whose points have their rays but one.
+    let mut f = grid(back, 12);
+    f.points[5].position.z = 10.0;
+    let e = analyse(&[f], &Options::standing()).unwrap_err();
+    assert!(matches!(e, SurfaceError::BadPoint { point: 5, .. }), "{e}");
+    assert!(e.to_string().contains("behind the camera"), "{e}");
+    let mut f = grid(back, 12);
+    f.points[9].ray = None;
+    let e = analyse(&[f], &Options::standing()).unwrap_err();
+    assert!(matches!(e, SurfaceError::BadPoint { point: 9, .. }), "{e}");
+    assert!(e.to_string().contains("with and without their rays"), "{e}");
 }

@@ -6,7 +6,7 @@
 //! covariance from that calibration, and analysed: `report.html`, `analysis.json`, `back.ply`
 //! and the rig's `back_system.json` in `out/`.
 
-use super::super::back::{back_report, Calibration};
+use super::super::back::{back_report, Calibration, PointSigma};
 use super::super::back_scan::{scan_back, ScannedBack};
 use super::super::scan::{identify_params, on_device};
 use super::super::system::calibrate_simulation;
@@ -115,7 +115,7 @@ pub fn scan_demo_back<T: Transport>(
     )?;
     let report = back_report(
         &[PathBuf::from("back.ply")],
-        Some(&calibration),
+        PointSigma::Calibration(&calibration),
         Some(system.fingerprint.clone()),
         scanned.analysis.clone(),
     );
