@@ -87,6 +87,38 @@ impl Frame {
         }
     }
 
+    /// The frame thinned to what a dot pattern `spacing` apart would give ([`thin`]): each
+    /// cell's point nearest its centre, with the cell as its ray; the common share's rows follow
+    /// the points kept.
+    pub fn thinned(&self, spacing: f64) -> Frame {
+        let positions: Vec<Vector3<f64>> = self.points.iter().map(|p| p.position).collect();
+        let kept = thin(&positions, spacing);
+        let points = kept
+            .iter()
+            .map(|&(i, node)| ScanPoint {
+                ray: Some(node),
+                ..self.points[i]
+            })
+            .collect();
+        let common = match &self.common {
+            CommonShare::Core {
+                covariance,
+                sensitivity,
+            } => CommonShare::Core {
+                covariance: covariance.clone(),
+                sensitivity: DMatrix::from_fn(3 * kept.len(), sensitivity.ncols(), |r, c| {
+                    sensitivity[(3 * kept[r / 3].0 + r % 3, c)]
+                }),
+            },
+            other => other.clone(),
+        };
+        Frame {
+            points,
+            calibration: self.calibration,
+            common,
+        }
+    }
+
     /// Checks the frame's numbers: finite points, symmetric non-negative covariances, a
     /// common share of the right size; `index` names the frame in the error.
     pub fn validate(&self, index: usize) -> Result<(), SurfaceError> {

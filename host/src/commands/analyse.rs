@@ -34,6 +34,11 @@ pub enum What {
         /// For clouds that carry no σ (from elsewhere): each point's σ on each axis, mm.
         #[arg(long, value_name = "MM")]
         sigma: Option<f64>,
+        /// Thin each cloud to what a dot pattern MM apart would give (of each MM square of the
+        /// camera's x-y plane, the point nearest its centre): for a dense cloud from another
+        /// scanner.
+        #[arg(long, value_name = "MM")]
+        thin: Option<f64>,
         /// Output folder: analysis.json and report.html.
         #[arg(long)]
         out: PathBuf,
@@ -85,6 +90,7 @@ pub fn exec(what: What) -> Result<()> {
             clouds,
             system,
             sigma,
+            thin,
             out,
             posture,
             vertical,
@@ -97,7 +103,7 @@ pub fn exec(what: What) -> Result<()> {
             };
             options.vertical = vertical.map(Vector3::from);
             let progress = output.progress(format!("analysing {} clouds", clouds.len()));
-            let report = analyse_clouds(&clouds, system.as_deref(), sigma, &options)?;
+            let report = analyse_clouds(&clouds, system.as_deref(), sigma, thin, &options)?;
             progress.finish_and_clear();
             let json = serde_json::to_string_pretty(&report)? + "\n";
             let html = report_html(&report)?;

@@ -20,8 +20,8 @@ pub struct BackReport {
     pub fingerprint: Option<String>,
     /// Where the points' covariance came from, in words.
     pub covariance: String,
-    /// What was assumed of the clouds, in words (a cloud that does not say its frame); absent
-    /// when nothing was.
+    /// What was assumed of the clouds or done to them, in words (a cloud that does not say its
+    /// frame, thinned or too dense); absent when nothing was.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
     /// The measures.

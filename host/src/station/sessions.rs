@@ -252,11 +252,12 @@ fn fill(
     }
     std::fs::write(dir.join("centroids.csv"), csv)?;
     let absolute: Vec<PathBuf> = clouds.iter().map(|p| dir.join(p)).collect();
-    let mut report = analyse_with(&absolute, PointSigma::Calibration(c), options).map_err(|e| {
-        // The staging folder's paths mean nothing to the operator.
-        let text = format!("{e:#}").replace(&format!("{}/", dir.display()), "");
-        anyhow::anyhow!("the burst cannot be analysed: {text}")
-    })?;
+    let mut report =
+        analyse_with(&absolute, PointSigma::Calibration(c), None, options).map_err(|e| {
+            // The staging folder's paths mean nothing to the operator.
+            let text = format!("{e:#}").replace(&format!("{}/", dir.display()), "");
+            anyhow::anyhow!("the burst cannot be analysed: {text}")
+        })?;
     report.clouds = clouds;
     let json = serde_json::to_string_pretty(&report)? + "\n";
     std::fs::write(dir.join("analysis.json"), json)?;

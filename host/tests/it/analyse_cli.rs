@@ -61,6 +61,46 @@ fn write_cloud_at(
     .unwrap();
 }
 
+/// A PLY of x y z only, as a mesh whose one face is not read: a cloud from elsewhere.
+fn plain(points: &[Vector3<f64>]) -> String {
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+         property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n",
+        points.len()
+    );
+    for p in points {
+        text += &format!("{:.3} {:.3} {:.3}\n", p.x, p.y, p.z);
+    }
+    text + "3 0 1 2\n"
+}
+
+/// `model`'s dots `spacing` apart, each with its noise (`seed`).
+fn noisy_dots(model: &BackModel, spacing: f64, seed: u64) -> Vec<Vector3<f64>> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, SIGMA).unwrap();
+    model
+        .sample(&Lattice::beside_camera(spacing))
+        .iter()
+        .map(|d| d.hit.point + Vector3::from_fn(|_, _| noise.sample(&mut rng)))
+        .collect()
+}
+
+/// The symmetry line of `analysed` (the command's JSON) within 6σ of `model`'s at every level
+/// (a gross check: the honesty of σ is the back tests' business).
+fn line_holds(analysed: &serde_json::Value, model: &BackModel) {
+    let axes = deltaz_host::simulate::back::Axes::camera();
+    let levels = analysed["levels"].as_array().unwrap();
+    assert!(levels.len() > 15, "{} levels", levels.len());
+    for level in levels {
+        let (x, _) = model
+            .symmetry_point(&axes, level["y"].as_f64().unwrap())
+            .unwrap();
+        let error = level["symmetry_x"].as_f64().unwrap() - x;
+        let sigma = level["symmetry_x_sigma"].as_f64().unwrap();
+        assert!(error.abs() < 6.0 * sigma, "{level}");
+    }
+}
+
 fn json(out: &Output) -> serde_json::Value {
     assert!(
         out.status.success(),
@@ -361,7 +401,8 @@ fn analyse_back_states_where_the_line_is_not_found() {
 }
 
 /// A cloud from elsewhere: x y z only (no frame in its header, no rays, no σ), as another
-/// scanner or another back model writes it, here as a mesh whose faces are not read. With --sigma it is analysed (meshed over what the
+/// scanner or another back model writes it, here as a mesh whose faces are not read; dense,
+/// and thinned. With --sigma it is analysed (meshed over what the
 /// camera sees) and the report says its frame was taken to be the camera system; without a σ,
 /// behind the camera, or given a σ it already has, it is refused.
 #[test]
@@ -369,25 +410,7 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let model = BackModel::standing(Deformity::thoracic());
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-    let noise = Normal::new(0.0, SIGMA).unwrap();
-    let points: Vec<Vector3<f64>> = model
-        .sample(&Lattice::beside_camera(20.0))
-        .iter()
-        .map(|d| d.hit.point + Vector3::from_fn(|_, _| noise.sample(&mut rng)))
-        .collect();
-    let plain = |points: &[Vector3<f64>]| {
-        let mut text = format!(
-            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
-             property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
-             end_header\n",
-            points.len()
-        );
-        for p in points {
-            text += &format!("{:.3} {:.3} {:.3}\n", p.x, p.y, p.z);
-        }
-        text + "3 0 1 2\n"
-    };
+    let points = noisy_dots(&model, 20.0, 9);
     std::fs::write(d.join("plain.ply"), plain(&points)).unwrap();
     let out = deltaz_in(
         d,
@@ -415,17 +438,24 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
         .contains("σ 0.4 mm"));
     let html = std::fs::read_to_string(d.join("a/report.html")).unwrap();
     assert!(html.contains(assumed));
-    // The line against the truth (6σ: a gross check, as above).
-    let axes = deltaz_host::simulate::back::Axes::camera();
-    let levels = analysed["levels"].as_array().unwrap();
-    assert!(levels.len() > 15, "{} levels", levels.len());
-    for level in levels {
-        let (x, _) = model
-            .symmetry_point(&axes, level["y"].as_f64().unwrap())
-            .unwrap();
-        let error = level["symmetry_x"].as_f64().unwrap() - x;
-        let sigma = level["symmetry_x_sigma"].as_f64().unwrap();
-        assert!(error.abs() < 6.0 * sigma, "{level}");
+    line_holds(&analysed, &model);
+    // A dense cloud (dots 6 mm apart): analysed as it is, with a note that it is denser than
+    // the patterns σ was tested at; thinned to 20 mm, as a 20 mm pattern would see it.
+    std::fs::write(d.join("dense.ply"), plain(&noisy_dots(&model, 6.0, 10))).unwrap();
+    for (thin, expect) in [
+        (None, "--thin 10"),
+        (Some("20"), "thinned to what a dot pattern 20 mm"),
+    ] {
+        let mut args = vec!["analyse", "back", "--cloud", "dense.ply", "--sigma", "0.4"];
+        args.extend(thin.map(|t| ["--thin", t]).iter().flatten());
+        args.extend(["--out", "dense", "--json"]);
+        let analysed = json(&deltaz_in(d, &args));
+        let notes = analysed["notes"].to_string();
+        assert!(notes.contains(expect), "{thin:?}: {notes}");
+        let spacing = analysed["spacing_mm"].as_f64().unwrap();
+        let want = thin.map_or(6.5, |_| 20.0);
+        assert!((spacing - want).abs() < 1.0, "{thin:?}: {spacing} mm");
+        line_holds(&analysed, &model);
     }
     // Refused: no σ; a σ it already has (a deltaz cloud's); points behind the camera; a σ of
     // nought. Nothing written.
@@ -435,11 +465,16 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
         .map(|p| Vector3::new(p.x, p.y, -p.z))
         .collect();
     std::fs::write(d.join("behind.ply"), plain(&behind)).unwrap();
-    let cases: [(&str, &[&str], &str); 4] = [
+    let cases: [(&str, &[&str], &str); 5] = [
         ("plain.ply", &[], "--sigma MM"),
         ("own.ply", &["--sigma", "0.4"], "carry their own σ"),
         ("behind.ply", &["--sigma", "0.4"], "behind the camera"),
         ("plain.ply", &["--sigma", "0"], "positive"),
+        (
+            "plain.ply",
+            &["--sigma", "0.4", "--thin", "0"],
+            "dot spacing is a positive",
+        ),
     ];
     for (cloud, extra, expect) in cases {
         let mut args = vec!["analyse", "back", "--cloud", cloud, "--out", "x"];

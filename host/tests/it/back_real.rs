@@ -170,6 +170,44 @@ fn real_backs_against_cobb() {
     mirrored(&scans, &patients);
     turned(&scans, &patients);
     without_rays(&scans, &patients);
+    through_the_command(&scans[0], &patients[0]);
+}
+
+/// A dense scan through `deltaz analyse back` as a cloud from elsewhere (x y z in the camera
+/// system, no σ, no frame in its header), thinned by the command (`--thin 15 --sigma 0.5`):
+/// the same analysis as the scan thinned here, to the digit.
+fn through_the_command(scan: &Patient, reading: &Reading) {
+    let dir = tempfile::tempdir().unwrap();
+    let points = &scan.upright.1;
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\n\
+         property double z\nend_header\n",
+        points.len()
+    );
+    for p in points {
+        text += &format!("{} {} {}\n", p.x, p.y, p.z);
+    }
+    std::fs::write(dir.path().join("scan.ply"), text).unwrap();
+    let (spacing, sigma) = (SPACING.to_string(), SIGMA.to_string());
+    let out = crate::cli::deltaz_ok(
+        dir.path(),
+        &[
+            "analyse", "back", "--cloud", "scan.ply", "--sigma", &sigma, "--thin", &spacing,
+            "--out", "a", "--json",
+        ],
+    );
+    let analysed: BackAnalysis = serde_json::from_slice(&out.stdout).unwrap();
+    let here = &reading.upright;
+    eprintln!(
+        "{} through the command: {} levels, largest rotation {:.2}° ({:.2}° here)",
+        scan.name,
+        analysed.levels.len(),
+        analysed.rotation_max_deg,
+        here.rotation_max_deg
+    );
+    assert_eq!(analysed.points, here.points);
+    assert_eq!(analysed.levels, here.levels);
+    assert_eq!(analysed.rotation_max_deg, here.rotation_max_deg);
 }
 
 /// The same thinned scans as clouds from elsewhere (their points without their lattice nodes,

@@ -7,7 +7,7 @@
 use deltaz_surface::{
     analyse, compare, thin, BackAnalysis, CommonShare, Frame, Options, ScanPoint, SurfaceError,
 };
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -231,6 +231,35 @@ fn thinning_keeps_one_point_per_cell() {
         assert!(
             (p.x - 15.0 * f64::from(c)).abs() <= 1.5 && (p.y - 15.0 * f64::from(r)).abs() <= 1.5
         );
+    }
+    // A frame thinned keeps those points, each with its cell as its ray and its rows of the
+    // common share (here each row holds its point's index and axis).
+    let frame = Frame {
+        points: dense
+            .iter()
+            .map(|&position| ScanPoint {
+                position,
+                covariance: Matrix3::identity(),
+                ray: None,
+            })
+            .collect(),
+        calibration: Some(3),
+        common: CommonShare::Core {
+            covariance: DMatrix::identity(1, 1),
+            sensitivity: DMatrix::from_fn(3 * dense.len(), 1, |r, _| r as f64),
+        },
+    };
+    let thinned = frame.thinned(15.0);
+    assert_eq!(thinned.calibration, Some(3));
+    for (k, (i, node)) in thin(&dense, 15.0).into_iter().enumerate() {
+        assert_eq!(thinned.points[k].position, dense[i]);
+        assert_eq!(thinned.points[k].ray, Some(node));
+        for axis in 0..3 {
+            assert_eq!(
+                thinned.common.sensitivity(k)[(axis, 0)],
+                (3 * i + axis) as f64
+            );
+        }
     }
 }
 
