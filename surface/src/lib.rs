@@ -84,6 +84,10 @@ pub enum SurfaceError {
         frame: usize,
         /// Its RMS distance from its best plane (mm).
         rms_mm: f64,
+        /// The points of the largest smooth piece of its mesh, which was measured.
+        piece: usize,
+        /// The frame's points.
+        points: usize,
     },
     /// The surface fit's normal equations are singular.
     Singular,
@@ -129,12 +133,27 @@ impl std::fmt::Display for SurfaceError {
             SurfaceError::NoBack { frame, problem } => {
                 write!(f, "frame {frame}: no back in view: {problem}")
             }
-            SurfaceError::Plane { frame, rms_mm } => write!(
-                f,
-                "frame {frame} is a plane, not a back: its points lie within {rms_mm:.2} mm RMS \
-                 of their best plane (a back departs by more than {} mm)",
-                analysis::PLANE_RMS_MM
-            ),
+            SurfaceError::Plane {
+                frame,
+                rms_mm,
+                piece,
+                points,
+            } => {
+                write!(
+                    f,
+                    "frame {frame} is a plane, not a back: the largest smooth piece of its mesh \
+                     ({piece} of its {points} points) lies within {rms_mm:.2} mm RMS of its best \
+                     plane (a back departs by more than {} mm)",
+                    analysis::PLANE_RMS_MM
+                )?;
+                if 2 * piece < *points {
+                    f.write_str(
+                        "; depth jumps, folds or a noise as large as the dots' spacing cut it \
+                         from the rest",
+                    )?;
+                }
+                Ok(())
+            }
             SurfaceError::Singular => {
                 f.write_str("the surface fit is singular (too few points spread over the back)")
             }

@@ -166,13 +166,16 @@ pub struct Vertex {
 /// faces) are not read.
 pub fn read_cloud(path: &Path) -> Result<Cloud> {
     let bytes = std::fs::read(path).map_err(|e| FileError::whole(path, e.to_string()))?;
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
+    // The header's lines end in LF, or CR LF as Windows writes them.
+    let (end, body) = [&b"end_header\n"[..], b"end_header\r\n"]
+        .iter()
+        .find_map(|tag| {
+            let at = bytes.windows(tag.len()).position(|w| w == *tag)?;
+            Some((at, &bytes[at + tag.len()..]))
+        })
         .ok_or_else(|| FileError::whole(path, "not a PLY file: no `end_header` line"))?;
     let header = std::str::from_utf8(&bytes[..end])
         .map_err(|_| FileError::whole(path, "the PLY header is not text"))?;
-    let body = &bytes[end + 11..];
     let mut cloud = Cloud::default();
     let mut ascii = None;
     let mut count = None;
@@ -442,7 +445,8 @@ mod tests {
         }
     }
 
-    /// A mesh's faces after its vertices are not read; an element before them is refused.
+    /// A mesh's faces after its vertices are not read (its lines may end in CR LF); an element
+    /// before them is refused.
     #[test]
     fn a_mesh_reads_its_vertices() {
         let dir = tempfile::tempdir().unwrap();
@@ -460,6 +464,12 @@ mod tests {
         let cloud = read_cloud(&path).unwrap();
         let points: Vec<_> = cloud.vertices.iter().map(|v| (v.point, v.ray)).collect();
         assert_eq!(points, [(Vector3::new(1.5, -2.0, -900.25), None)]);
+        // As Windows writes text: each line ending in CR LF.
+        let text = "ply\r\nformat ascii 1.0\r\nelement vertex 1\r\nproperty float x\r\n\
+                    property float y\r\nproperty float z\r\nend_header\r\n1.5 -2 -900.25\r\n";
+        std::fs::write(&path, text).unwrap();
+        let cloud = read_cloud(&path).unwrap();
+        assert_eq!(cloud.vertices[0].point, Vector3::new(1.5, -2.0, -900.25));
         let text =
             "ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\n\
                     element vertex 1\nproperty float x\nend_header\n1\n";

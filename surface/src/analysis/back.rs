@@ -150,7 +150,12 @@ pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
         });
     }
     if rms < PLANE_RMS_MM {
-        return Err(SurfaceError::Plane { frame, rms_mm: rms });
+        return Err(SurfaceError::Plane {
+            frame,
+            rms_mm: rms,
+            piece: b.kept.len(),
+            points: b.positions.len(),
+        });
     }
     Ok(())
 }

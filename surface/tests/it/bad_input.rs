@@ -44,9 +44,25 @@ fn a_back_in_metres_is_named() {
 
 #[test]
 fn a_plane_is_not_a_back() {
-    let e = analyse(&[grid(|x, _| -1500.0 + 0.1 * x, 12)], &Options::standing()).unwrap_err();
+    let plane = grid(|x, _| -1500.0 + 0.1 * x, 12);
+    let e = analyse(std::slice::from_ref(&plane), &Options::standing()).unwrap_err();
     assert!(matches!(e, SurfaceError::Plane { .. }), "{e}");
-    assert!(e.to_string().contains("plane"));
+    assert!(e.to_string().contains("(625 of its 625 points)"), "{e}");
+    assert!(!e.to_string().contains("cut it"), "{e}");
+    // With more points apart from it than on it, the message says what cuts a mesh apart.
+    let mut cut = plane;
+    let apart: Vec<ScanPoint> = (0..700)
+        .map(|k| ScanPoint {
+            ray: Some([100 + 3 * k as i32, 100]),
+            ..cut.points[k % 625]
+        })
+        .collect();
+    cut.points.extend(apart);
+    let e = analyse(&[cut], &Options::standing()).unwrap_err();
+    assert!(
+        e.to_string().contains("(625 of its 1325 points)") && e.to_string().contains("cut it"),
+        "{e}"
+    );
 }
 
 #[test]
