@@ -28,7 +28,7 @@ pub enum What {
         clouds: Vec<PathBuf>,
         /// The system the clouds were measured with (system.json of `calibrate system`): each
         /// point's covariance, the calibration's common share included. Without it the clouds'
-        /// own σ (a `sigma_*` property) is used.
+        /// own σ (`sigma_*` properties) or --sigma is used.
         #[arg(long, conflicts_with = "sigma")]
         system: Option<PathBuf>,
         /// For clouds that carry no σ (from elsewhere): each point's σ on each axis, mm.
