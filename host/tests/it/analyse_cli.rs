@@ -401,10 +401,11 @@ fn analyse_back_states_where_the_line_is_not_found() {
 }
 
 /// A cloud from elsewhere: x y z only (no frame in its header, no rays, no σ), as another
-/// scanner or another back model writes it, here as a mesh whose faces are not read; dense,
-/// and thinned. With --sigma it is analysed (meshed over what the
-/// camera sees) and the report says its frame was taken to be the camera system; without a σ,
-/// behind the camera, or given a σ it already has, it is refused.
+/// scanner or another back model writes it, here as a mesh whose faces are not read. With
+/// --sigma it is analysed (meshed over what the camera sees), and the report says its frame
+/// was taken to be the camera system; dense, it is analysed as it is with a note, or thinned.
+/// Without a σ, behind the camera, given a σ it already has, or a σ or spacing of nought, it
+/// is refused.
 #[test]
 fn analyse_back_reads_a_cloud_from_elsewhere() {
     let dir = tempfile::tempdir().unwrap();

@@ -107,7 +107,7 @@ pub fn back_dots(model: &BackModel, spacing: f64) -> Vec<LatticeDot> {
 }
 
 /// How far another scanner's points lie from a regular grid, in spacings (either way).
-pub const JITTER: f64 = 0.15;
+const JITTER: f64 = 0.15;
 
 /// The points another scanner gives of `model`: where its camera (at the origin) looks, on a
 /// grid of directions `spacing` apart at 1.5 m, each jittered by up to [`JITTER`] of it (`seed`),
