@@ -162,7 +162,8 @@ fn real_backs_against_cobb() {
             p.upright.asymmetry_max_mm_sigma.unwrap()
         );
     }
-    assert_eq!(patients.len(), 10);
+    // Every patient the data set lists (ten here; more where it holds more).
+    assert!(patients.len() >= 10, "{} patients", patients.len());
     let [_, atr, _] = correlations(&patients, lattice);
     assert!(atr >= 0.6, "r(scoliometer, Cobb) = {atr:.3}");
     rotation_against_the_dense_scans(&scans, &patients);
