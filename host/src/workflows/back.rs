@@ -129,9 +129,18 @@ fn lattice_node(id: u16) -> [i32; 2] {
     [i32::from(id % ID_STRIDE), i32::from(id / ID_STRIDE)]
 }
 
-/// The frames of the clouds at `paths`, each point with its covariance from `sigma`, and what
-/// was assumed of the clouds (a cloud that does not say its frame).
-pub fn frames(paths: &[PathBuf], sigma: PointSigma) -> Result<(Vec<Frame>, Vec<String>)> {
+/// The clouds of one analysis, read.
+pub struct Clouds {
+    /// Their frames, each point with its covariance.
+    pub frames: Vec<Frame>,
+    /// What was assumed of them (a cloud that does not say its frame).
+    pub notes: Vec<String>,
+    /// The calibration they name, if any (one for all).
+    pub fingerprint: Option<String>,
+}
+
+/// The clouds at `paths`, each point with its covariance from `sigma`.
+pub fn frames(paths: &[PathBuf], sigma: PointSigma) -> Result<Clouds> {
     let mut frames = Vec::new();
     let mut notes = Vec::new();
     let mut fingerprint: Option<(String, &Path)> = None;
@@ -160,7 +169,11 @@ pub fn frames(paths: &[PathBuf], sigma: PointSigma) -> Result<(Vec<Frame>, Vec<S
         }
         frames.extend(cloud_frames(path, &cloud, sigma)?);
     }
-    Ok((frames, notes))
+    Ok(Clouds {
+        frames,
+        notes,
+        fingerprint: fingerprint.map(|(f, _)| f),
+    })
 }
 
 /// The frames of one cloud (`path` names it): one per `frame` value (the whole cloud without
@@ -311,7 +324,11 @@ pub fn analyse_with(
     if paths.is_empty() {
         bail!("give at least one --cloud");
     }
-    let (mut frames, mut notes) = frames(paths, sigma)?;
+    let Clouds {
+        mut frames,
+        mut notes,
+        fingerprint,
+    } = frames(paths, sigma)?;
     if let Some(s) = thin {
         frames = frames.iter().map(|f| f.thinned(s)).collect();
         notes.push(format!(
@@ -325,7 +342,7 @@ pub fn analyse_with(
     })?;
     let fingerprint = match sigma {
         PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
-        _ => read_cloud(&paths[0]).ok().and_then(|c| c.fingerprint),
+        _ => fingerprint,
     };
     if thin.is_none() && analysis.spacing_mm < DENSE_MM {
         notes.push(format!(

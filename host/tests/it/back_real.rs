@@ -225,14 +225,15 @@ fn without_rays(scans: &[Patient], readings: &[Reading]) {
         }
         let a = analyse(&[frame], &Options::standing())
             .unwrap_or_else(|e| panic!("{} without rays: {e}", p.name));
-        let (mut sum, mut n) = (0.0, 0);
-        for l in &reading.upright.levels {
-            if let Some((v, s)) = at(&a.levels, l.y, ROTATION) {
-                sum += (l.rotation_deg - v).powi(2) / (s * s + l.rotation_sigma_deg.powi(2));
-                n += 1;
-            }
-        }
-        let z = (sum / f64::from(n)).sqrt();
+        let mut change = Errors::default();
+        changes(
+            &mut change,
+            &reading.upright.levels,
+            &a.levels,
+            ROTATION,
+            0.0,
+        );
+        let (z, n) = (change.z(), change.count());
         eprintln!(
             "{} without rays: {} levels ({} with them), RMS change/σ {z:.2} over {n}, largest \
              rotation {:.1}° ({:.1}°)",
@@ -283,14 +284,13 @@ fn turned(scans: &[Patient], original: &[Reading]) {
         for (scan, reading) in scans.iter().zip(original) {
             let a = analysed(scan, theta);
             let mut change = Errors::default();
-            for l in &reading.upright.levels {
-                if let Some((r, sigma)) = at(&a.levels, l.y, ROTATION) {
-                    change.push(
-                        r - l.rotation_deg - theta,
-                        l.rotation_sigma_deg.hypot(sigma),
-                    );
-                }
-            }
+            changes(
+                &mut change,
+                &reading.upright.levels,
+                &a.levels,
+                ROTATION,
+                theta,
+            );
             eprintln!(
                 "{} turned {theta:+}°: {} levels, rotation change − turn {:+.2}° mean, RMS/σ {:.2} over {} levels",
                 reading.name,
@@ -608,6 +608,16 @@ fn at(levels: &[Level], y: f64, field: Field) -> Option<(f64, f64)> {
     (q.y - p.y < 1.5 * SPACING).then_some(((1.0 - t) * a + t * b, (1.0 - t) * sa + t * sb))
 }
 
+/// The changes of `field` from the levels `from` to `to` (interpolated there, [`at`]), less
+/// `expected`, each with the σ of its two values, pushed into `errors`.
+fn changes(errors: &mut Errors, from: &[Level], to: &[Level], field: Field, expected: f64) {
+    for l in from {
+        if let (Some((a, sa)), Some((b, sb))) = (field(l), at(to, l.y, field)) {
+            errors.push(b - a - expected, sa.hypot(sb));
+        }
+    }
+}
+
 /// Each patient's profiles on every two lattice placements agree within their σ, level by
 /// level: the RMS of change/σ of the symmetry line and the rotation (standing) and the
 /// scoliometer (bent forward) is under 2 on every patient. Measured 0.3-0.8 for the line and
@@ -625,21 +635,14 @@ fn agree_within_sigma(placed: &[Vec<Reading>]) {
     ];
     for (i, patient) in placed[0].iter().enumerate() {
         for (name, bent, field) in fields {
-            let (mut sum, mut n) = (0.0, 0);
+            let mut change = Errors::default();
             for (a, ra) in placed.iter().enumerate() {
                 for rb in &placed[a + 1..] {
                     let (la, lb) = (&ra[i].pose(bent).levels, &rb[i].pose(bent).levels);
-                    for l in la {
-                        let (Some((va, sa)), Some((vb, sb))) = (field(l), at(lb, l.y, field))
-                        else {
-                            continue;
-                        };
-                        sum += (va - vb).powi(2) / (sa * sa + sb * sb);
-                        n += 1;
-                    }
+                    changes(&mut change, la, lb, field, 0.0);
                 }
             }
-            let z = (sum / f64::from(n)).sqrt();
+            let (z, n) = (change.z(), change.count());
             eprintln!(
                 "{}: {name}, RMS change/σ between placements {z:.2} ({n} levels)",
                 patient.name

@@ -429,14 +429,24 @@ pub fn scans_of(
     seed: u64,
     options: &Options,
 ) -> IndexErrors {
-    let noise = Noise::issue();
     let mut errors = IndexErrors::default();
-    for k in 0..draws {
-        let a = scanned(dots, rays, &noise, seed + k, options)
-            .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
+    for (k, a) in analysed(dots, rays, draws, seed, options).enumerate() {
+        let a = a.unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
         errors.add(&models[0], &a);
     }
     errors
+}
+
+/// The analyses of `draws` scans ([`scanned`] with the issue's noise, seeds from `seed`), each
+/// as the analysis gives it: a back it refuses is an error.
+pub fn analysed<'a>(
+    dots: &'a [Vec<LatticeDot>],
+    rays: bool,
+    draws: u64,
+    seed: u64,
+    options: &'a Options,
+) -> impl Iterator<Item = Result<BackAnalysis, SurfaceError>> + 'a {
+    (0..draws).map(move |k| scanned(dots, rays, &Noise::issue(), seed + k, options))
 }
 
 /// One draw (`seed`): a frame of each of `dots` with its own noise and the common error, its
