@@ -8,7 +8,7 @@
 #[allow(dead_code)]
 mod back_sim;
 
-use back_sim::{analysed, back_dots, common_draw, frame, rng, Errors, IndexErrors, Noise};
+use back_sim::{analysed, back_dots, common_draw, frame, rng, Errors, Given, IndexErrors, Noise};
 use deltaz_host::simulate::back::{BackModel, Deformity};
 use deltaz_surface::{analyse, Options};
 use std::time::Instant;
@@ -27,7 +27,7 @@ fn main() {
         let dots = [back_dots(&model, spacing)];
         let mut errors = IndexErrors::default();
         let mut refused = 0;
-        for a in analysed(&dots, true, draws, 1, options) {
+        for a in analysed(&dots, Given::WithRays, draws, 1, options) {
             match a {
                 Ok(a) => errors.add(&model, &a),
                 Err(_) => refused += 1,

@@ -1,6 +1,7 @@
 //! What the analysis reads: each frame's points with their covariance, and the calibration's
 //! share common to all of them.
 
+use crate::mesh::Mesh;
 use crate::SurfaceError;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use std::collections::HashMap;
@@ -84,6 +85,17 @@ impl Frame {
             points,
             calibration: None,
             common: CommonShare::None,
+        }
+    }
+
+    /// The mesh over the frame's points: over the projector lattice when they carry their
+    /// rays, else over the directions the camera sees them in.
+    pub fn mesh(&self) -> Mesh {
+        let positions: Vec<_> = self.points.iter().map(|p| p.position).collect();
+        let rays: Option<Vec<_>> = self.points.iter().map(|p| p.ray).collect();
+        match rays {
+            Some(rays) => Mesh::over_lattice(&positions, &rays),
+            None => Mesh::over_directions(&positions),
         }
     }
 

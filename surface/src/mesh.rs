@@ -111,6 +111,31 @@ impl Mesh {
         }
     }
 
+    /// How irregularly the points lie: the RMS spread of each meshed point's distance to its
+    /// nearest neighbour along the triangles, over their mean (a lattice's 0.05 on a back, a
+    /// grid each of whose points strays uniformly by up to 0.15 of its spacing 0.13, by up to
+    /// 0.3 0.21, points scattered at random 0.55).
+    pub fn irregularity(&self) -> f64 {
+        let mut nearest = vec![f64::INFINITY; self.points.len()];
+        for t in &self.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let d = (self.points[a] - self.points[b]).norm();
+                nearest[a] = nearest[a].min(d);
+                nearest[b] = nearest[b].min(d);
+            }
+        }
+        let meshed: Vec<f64> = nearest.into_iter().filter(|d| d.is_finite()).collect();
+        let n = meshed.len().max(1) as f64;
+        let mean = meshed.iter().sum::<f64>() / n;
+        let spread = (meshed.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
+        if mean > 0.0 {
+            spread / mean
+        } else {
+            0.0
+        }
+    }
+
     /// The points of the largest smooth piece (by points), sorted, and its triangles: the
     /// triangles connected across shared edges where the surface folds by less than
     /// [`CREASE`] (an arm touching the trunk meets it at a fold).

@@ -2,10 +2,11 @@
 //! dots 20 mm apart, σ 0.4 mm, written as deltaz clouds with their σ) into analysis.json and
 //! report.html, the follow-up of two analyses, and the clouds it refuses.
 
+use crate::back_sim::{scanner_dots, scattered_dots};
 use crate::cli::deltaz_in;
 use deltaz_calib::reconstruct::ReconstructedPoint;
 use deltaz_host::io::ply::{encode_with, CloudInfo, Encoding};
-use deltaz_host::simulate::back::{BackModel, Deformity, Lattice, Pose};
+use deltaz_host::simulate::back::{BackModel, Deformity, Lattice, LatticeDot, Pose};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -74,13 +75,11 @@ fn plain(points: &[Vector3<f64>]) -> String {
     text + "3 0 1 2\n"
 }
 
-/// `model`'s dots `spacing` apart, each with its noise (`seed`).
-fn noisy_dots(model: &BackModel, spacing: f64, seed: u64) -> Vec<Vector3<f64>> {
+/// The points of `dots`, each with its noise (`seed`).
+fn noisy(dots: &[LatticeDot], seed: u64) -> Vec<Vector3<f64>> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, SIGMA).unwrap();
-    model
-        .sample(&Lattice::beside_camera(spacing))
-        .iter()
+    dots.iter()
         .map(|d| d.hit.point + Vector3::from_fn(|_, _| noise.sample(&mut rng)))
         .collect()
 }
@@ -403,15 +402,17 @@ fn analyse_back_states_where_the_line_is_not_found() {
 /// A cloud from elsewhere: x y z only (no frame in its header, no rays, no σ), as another
 /// scanner or another back model writes it, here as a mesh whose faces are not read. With
 /// --sigma it is analysed (meshed over what the camera sees), and the report says its frame
-/// was taken to be the camera system; dense, it is analysed as it is with a note, or thinned.
-/// Without a σ, behind the camera, given a σ it already has, or a σ or spacing of nought, it
-/// is refused.
+/// was taken to be the camera system; dense and scattered at random, it is thinned (to three
+/// times its spacing, or as asked) with a note; off a grid by up to 0.3 of its spacing, it is
+/// analysed with a note.
+/// Without a σ, behind the camera, given a σ it already has, a σ or spacing of nought, or
+/// scattered at random 20 mm apart, it is refused.
 #[test]
 fn analyse_back_reads_a_cloud_from_elsewhere() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let model = BackModel::standing(Deformity::thoracic());
-    let points = noisy_dots(&model, 20.0, 9);
+    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), 9);
     std::fs::write(d.join("plain.ply"), plain(&points)).unwrap();
     let out = deltaz_in(
         d,
@@ -440,11 +441,16 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
     let html = std::fs::read_to_string(d.join("a/report.html")).unwrap();
     assert!(html.contains(assumed));
     line_holds(&analysed, &model);
-    // A dense cloud (dots 6 mm apart): analysed as it is, with a note that it is denser than
-    // the patterns σ was tested at; thinned to 20 mm, as a 20 mm pattern would see it.
-    std::fs::write(d.join("dense.ply"), plain(&noisy_dots(&model, 6.0, 10))).unwrap();
+    // A dense cloud scattered at random (5 mm apart on average): thinned to 15 mm (three times
+    // its spacing), with a note that it is denser than the patterns σ was tested at; or to 20
+    // mm, as asked.
+    let scattered = noisy(&scattered_dots(&model, 5.0, 10), 10);
+    std::fs::write(d.join("dense.ply"), plain(&scattered)).unwrap();
     for (thin, expect) in [
-        (None, "--thin 10"),
+        (
+            None,
+            "denser than the dot patterns (10-40 mm) the σ were tested at: thinned to 15 mm",
+        ),
         (Some("20"), "thinned to what a dot pattern 20 mm"),
     ] {
         let mut args = vec!["analyse", "back", "--cloud", "dense.ply", "--sigma", "0.4"];
@@ -453,20 +459,45 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
         let analysed = json(&deltaz_in(d, &args));
         let notes = analysed["notes"].to_string();
         assert!(notes.contains(expect), "{thin:?}: {notes}");
+        assert!(!notes.contains("irregularly"), "{thin:?}: {notes}");
         let spacing = analysed["spacing_mm"].as_f64().unwrap();
-        let want = thin.map_or(6.5, |_| 20.0);
-        assert!((spacing - want).abs() < 1.0, "{thin:?}: {spacing} mm");
+        // A scattered cloud's thinned points lie off their cells' centres: a little further apart.
+        let want = thin.map_or(15.0, |_| 20.0);
+        assert!(
+            (want..1.12 * want).contains(&spacing),
+            "{thin:?}: {spacing} mm"
+        );
         line_holds(&analysed, &model);
     }
+    // Points off a grid by up to 0.3 of its spacing: analysed, with a note that the σ were
+    // tested on more regular samplings.
+    let jittered = noisy(&scanner_dots(&model, 20.0, 0.3, 11), 11);
+    std::fs::write(d.join("jittered.ply"), plain(&jittered)).unwrap();
+    let args = [
+        "analyse",
+        "back",
+        "--cloud",
+        "jittered.ply",
+        "--sigma",
+        "0.4",
+    ];
+    let analysed = json(&deltaz_in(
+        d,
+        &[&args[..], &["--out", "j", "--json"]].concat(),
+    ));
+    let notes = analysed["notes"].to_string();
+    assert!(notes.contains("the points lie irregularly"), "{notes}");
     // Refused: no σ; a σ it already has (a deltaz cloud's); points behind the camera; a σ of
-    // nought. Nothing written.
+    // nought; points scattered at random 20 mm apart. Nothing written.
+    let scattered = noisy(&scattered_dots(&model, 20.0, 12), 12);
+    std::fs::write(d.join("scattered.ply"), plain(&scattered)).unwrap();
     write_cloud(&d.join("own.ply"), &model, "the camera system", 1);
     let behind: Vec<Vector3<f64>> = points
         .iter()
         .map(|p| Vector3::new(p.x, p.y, -p.z))
         .collect();
     std::fs::write(d.join("behind.ply"), plain(&behind)).unwrap();
-    let cases: [(&str, &[&str], &str); 5] = [
+    let cases: [(&str, &[&str], &str); 6] = [
         ("plain.ply", &[], "--sigma MM"),
         ("own.ply", &["--sigma", "0.4"], "carry their own σ"),
         ("behind.ply", &["--sigma", "0.4"], "behind the camera"),
@@ -476,6 +507,7 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
             &["--sigma", "0.4", "--thin", "0"],
             "dot spacing is a positive",
         ),
+        ("scattered.ply", &["--sigma", "0.4"], "scattered at random"),
     ];
     for (cloud, extra, expect) in cases {
         let mut args = vec!["analyse", "back", "--cloud", cloud, "--out", "x"];

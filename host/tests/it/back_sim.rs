@@ -106,30 +106,49 @@ pub fn back_dots(model: &BackModel, spacing: f64) -> Vec<LatticeDot> {
     model.sample(&Lattice::beside_camera(spacing))
 }
 
-/// How far another scanner's points lie from a regular grid, in spacings (either way).
-const JITTER: f64 = 0.15;
-
 /// The points another scanner gives of `model`: where its camera (at the origin) looks, on a
-/// grid of directions `spacing` apart at 1.5 m, each jittered by up to [`JITTER`] of it (`seed`),
-/// where the line of sight meets the surface within 80° of its normal. Each keeps its grid
-/// node as its ray, for a caller that drops them.
-pub fn scanner_dots(model: &BackModel, spacing: f64, seed: u64) -> Vec<LatticeDot> {
+/// grid of directions `spacing` apart at 1.5 m, each jittered by up to `jitter` of it (either
+/// way; `seed`). Each keeps its grid node as its ray, for a caller that drops them.
+pub fn scanner_dots(model: &BackModel, spacing: f64, jitter: f64, seed: u64) -> Vec<LatticeDot> {
     let mut r = rng(seed);
-    let jitter = rand_distr::Uniform::new(-JITTER * spacing, JITTER * spacing).unwrap();
+    let jitter = rand_distr::Uniform::new(-jitter * spacing, jitter * spacing).unwrap();
     let n = (450.0 / spacing).floor() as i32;
-    let mut dots = Vec::new();
-    for j in -n..=n {
-        for i in -n..=n {
-            let at = |k: i32, r: &mut ChaCha8Rng| f64::from(k) * spacing + jitter.sample(r);
-            let sight = Vector3::new(at(i, &mut r), at(j, &mut r), -1500.0).normalize();
-            if let Some(hit) = model.hit(&Vector3::zeros(), &sight) {
-                if -hit.normal.dot(&sight) > 80f64.to_radians().cos() {
-                    dots.push(LatticeDot { ray: [i, j], hit });
-                }
-            }
-        }
-    }
-    dots
+    let grid = (-n..=n).flat_map(|j| (-n..=n).map(move |i| [i, j]));
+    let directions: Vec<_> = grid
+        .map(|node| {
+            (
+                node,
+                node.map(|k| f64::from(k) * spacing + jitter.sample(&mut r)),
+            )
+        })
+        .collect();
+    looked_at(model, directions)
+}
+
+/// The points of `model` where a camera looks in directions scattered at random, as many as
+/// [`scanner_dots`]'s grid holds, each uniform over its field (`seed`): a back model's mesh
+/// sampled uniformly, as clouds are made of them.
+pub fn scattered_dots(model: &BackModel, spacing: f64, seed: u64) -> Vec<LatticeDot> {
+    let mut r = rng(seed);
+    let n = (450.0 / spacing).floor() as i32;
+    let half = f64::from(n) * spacing;
+    let field = rand_distr::Uniform::new(-half, half).unwrap();
+    let directions: Vec<_> = (0..(2 * n + 1).pow(2))
+        .map(|k| ([k, 0], [0; 2].map(|_| field.sample(&mut r))))
+        .collect();
+    looked_at(model, directions)
+}
+
+/// Where a camera at the origin looking in `directions` (x, y at 1.5 m, each with a key) sees
+/// `model`: the lines of sight that meet the surface within 80° of its normal, each point with
+/// its key as its ray.
+fn looked_at(model: &BackModel, directions: Vec<([i32; 2], [f64; 2])>) -> Vec<LatticeDot> {
+    let seen = |(ray, [x, y]): ([i32; 2], [f64; 2])| {
+        let sight = Vector3::new(x, y, -1500.0).normalize();
+        let hit = model.hit(&Vector3::zeros(), &sight)?;
+        (-hit.normal.dot(&sight) > 80f64.to_radians().cos()).then_some(LatticeDot { ray, hit })
+    };
+    directions.into_iter().filter_map(seen).collect()
 }
 
 /// Error and error/σ of an index over draws.
@@ -417,20 +436,32 @@ pub fn scans(
     options: &Options,
 ) -> IndexErrors {
     let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
-    scans_of(models, &dots, true, draws, seed, options)
+    scans_of(models, &dots, Given::WithRays, draws, seed, options)
 }
 
-/// [`scans`] of the `dots` on each of `models`, the points with their rays or without.
+/// How a draw's points reach the analysis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Given {
+    /// With their rays: meshed over the lattice.
+    WithRays,
+    /// Without (a cloud from elsewhere): meshed over what the camera sees.
+    WithoutRays,
+    /// Without, thinned to what a dot pattern this far apart (mm) would give, as `deltaz
+    /// analyse back` thins a dense cloud.
+    Thinned(f64),
+}
+
+/// [`scans`] of the `dots` on each of `models`, the points `given` as they say.
 pub fn scans_of(
     models: &[BackModel],
     dots: &[Vec<LatticeDot>],
-    rays: bool,
+    given: Given,
     draws: u64,
     seed: u64,
     options: &Options,
 ) -> IndexErrors {
     let mut errors = IndexErrors::default();
-    for (k, a) in analysed(dots, rays, draws, seed, options).enumerate() {
+    for (k, a) in analysed(dots, given, draws, seed, options).enumerate() {
         let a = a.unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
         errors.add(&models[0], &a);
     }
@@ -441,19 +472,19 @@ pub fn scans_of(
 /// as the analysis gives it: a back it refuses is an error.
 pub fn analysed<'a>(
     dots: &'a [Vec<LatticeDot>],
-    rays: bool,
+    given: Given,
     draws: u64,
     seed: u64,
     options: &'a Options,
 ) -> impl Iterator<Item = Result<BackAnalysis, SurfaceError>> + 'a {
-    (0..draws).map(move |k| scanned(dots, rays, &Noise::issue(), seed + k, options))
+    (0..draws).map(move |k| scanned(dots, given, &Noise::issue(), seed + k, options))
 }
 
 /// One draw (`seed`): a frame of each of `dots` with its own noise and the common error, its
-/// points with their rays or without, all analysed together with `options`.
+/// points `given` as it says, all analysed together with `options`.
 pub fn scanned(
     dots: &[Vec<LatticeDot>],
-    rays: bool,
+    given: Given,
     noise: &Noise,
     seed: u64,
     options: &Options,
@@ -464,8 +495,14 @@ pub fn scanned(
         .iter()
         .map(|d| frame(d, noise, &delta, &mut r))
         .collect();
-    for p in frames.iter_mut().flat_map(|f| &mut f.points) {
-        p.ray = p.ray.filter(|_| rays);
+    for f in &mut frames {
+        for p in &mut f.points {
+            p.ray = p.ray.filter(|_| given == Given::WithRays);
+        }
+        if let Given::Thinned(spacing) = given {
+            *f = f.thinned(spacing);
+        }
     }
     analyse(&frames, options)
 }
+

@@ -4,7 +4,6 @@
 use super::{Axes, Options, Posture, MIN_POINTS, PLANE_RMS_MM};
 use crate::fit::Sample;
 use crate::input::Frame;
-use crate::mesh::Mesh;
 use crate::SurfaceError;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
@@ -28,12 +27,7 @@ pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceErr
             needed: MIN_POINTS,
         });
     }
-    let positions: Vec<_> = frame.points.iter().map(|p| p.position).collect();
-    let rays: Option<Vec<_>> = frame.points.iter().map(|p| p.ray).collect();
-    let mesh = match rays {
-        Some(rays) => Mesh::over_lattice(&positions, &rays),
-        None => Mesh::over_directions(&positions),
-    };
+    let mesh = frame.mesh();
     let (kept, triangles) = mesh.largest_piece();
     if kept.len() < MIN_POINTS {
         return Err(SurfaceError::NoBack {
