@@ -100,18 +100,20 @@ impl Frame {
     }
 
     /// The frame thinned to what a dot pattern `spacing` apart would give ([`thin`]): each
-    /// cell's point nearest its centre, with the cell as its ray; the common share's rows follow
-    /// the points kept.
+    /// cell's point nearest its centre, with the cell as its ray.
     pub fn thinned(&self, spacing: f64) -> Frame {
         let positions: Vec<Vector3<f64>> = self.points.iter().map(|p| p.position).collect();
         let kept = thin(&positions, spacing);
-        let points = kept
-            .iter()
-            .map(|&(i, node)| ScanPoint {
-                ray: Some(node),
-                ..self.points[i]
-            })
-            .collect();
+        let mut thinned = self.only(&kept.iter().map(|&(i, _)| i).collect::<Vec<_>>());
+        for (p, &(_, node)) in thinned.points.iter_mut().zip(&kept) {
+            p.ray = Some(node);
+        }
+        thinned
+    }
+
+    /// The frame's points `kept` (indices, in that order), the common share's rows following
+    /// them.
+    pub fn only(&self, kept: &[usize]) -> Frame {
         let common = match &self.common {
             CommonShare::Core {
                 covariance,
@@ -119,13 +121,13 @@ impl Frame {
             } => CommonShare::Core {
                 covariance: covariance.clone(),
                 sensitivity: DMatrix::from_fn(3 * kept.len(), sensitivity.ncols(), |r, c| {
-                    sensitivity[(3 * kept[r / 3].0 + r % 3, c)]
+                    sensitivity[(3 * kept[r / 3] + r % 3, c)]
                 }),
             },
             other => other.clone(),
         };
         Frame {
-            points,
+            points: kept.iter().map(|&i| self.points[i]).collect(),
             calibration: self.calibration,
             common,
         }

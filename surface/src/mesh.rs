@@ -1,9 +1,10 @@
 //! A mesh over the projector lattice: the points of neighbouring rays make triangles, an
-//! occlusion or a depth jump leaves a hole, and the back is the largest connected piece.
-//! Points without their rays are meshed by the Delaunay triangulation of what the camera sees.
+//! occlusion or a depth jump leaves a hole, and the back is the largest connected piece; a gap
+//! of a dot or a few not measured is spanned ([`Mesh::gaps`]). Points without their rays are
+//! meshed by the Delaunay triangulation of what the camera sees.
 
 use nalgebra::Vector3;
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 
 /// Triangles over a frame's points (indices into them).
 #[derive(Debug, Clone, PartialEq)]
@@ -23,6 +24,10 @@ const JUMP: f64 = 2.5;
 /// an occlusion (or a surface too oblique to measure well): at the lattice's resolution a
 /// jump and a steep flank look alike, so both are left out.
 const OBLIQUE: f64 = 60.0 * std::f64::consts::PI / 180.0;
+/// An enclosed hole in a mesh bounded by at most this many edges is a gap in the sampling (a
+/// dot or a few not measured, or a sparse patch of another scanner's points: one dot of a
+/// lattice leaves a loop of 4, three in a row one of 8), not in the surface.
+const GAP_EDGES: usize = 8;
 /// Neighbouring triangles whose normals differ by more than this (rad) meet at a fold of two
 /// surfaces (an arm against the trunk), not within one.
 const CREASE: f64 = 45.0 * std::f64::consts::PI / 180.0;
@@ -188,6 +193,61 @@ impl Mesh {
         };
         let kept = vertices(best);
         (kept, best.iter().map(|&k| t[k]).collect())
+    }
+}
+
+impl Mesh {
+    /// The gaps `triangles` enclose ([`GAP_EDGES`]), each as triangles (a fan over its loop):
+    /// the surface spans them. The triangles turn alike (a lattice's cells and the Delaunay
+    /// triangles do), so the boundary's edges, each in its triangle's turn, run in loops: the
+    /// outline one way round and every hole the other.
+    pub fn gaps(triangles: &[[usize; 3]]) -> Vec<[usize; 3]> {
+        // Each edge a → b of a triangle, with its third corner.
+        let third: HashMap<(usize, usize), usize> = triangles
+            .iter()
+            .flat_map(|&[a, b, c]| [((a, b), c), ((b, c), a), ((c, a), b)])
+            .collect();
+        let boundary: BTreeSet<(usize, usize)> = third
+            .keys()
+            .filter(|&&(a, b)| !third.contains_key(&(b, a)))
+            .copied()
+            .collect();
+        // The boundary edge after a → b: round b through its triangles to the next edge out of
+        // b that no triangle shares.
+        let after = |(a, b): (usize, usize)| {
+            let mut c = third[&(a, b)];
+            for _ in 0..triangles.len() {
+                match third.get(&(c, b)) {
+                    Some(&d) => c = d,
+                    None => break,
+                }
+            }
+            (b, c)
+        };
+        let mut walked = BTreeSet::new();
+        let mut loops: Vec<Vec<usize>> = Vec::new();
+        for &start in &boundary {
+            let mut corners = Vec::new();
+            let mut edge = start;
+            while walked.insert(edge) {
+                corners.push(edge.0);
+                edge = after(edge);
+            }
+            if edge == start && corners.len() >= 3 {
+                loops.push(corners);
+            }
+        }
+        // The outline is the longest loop; a small one touching it is a notch pinched off it.
+        let outline: BTreeSet<usize> = loops
+            .iter()
+            .max_by_key(|l| l.len())
+            .map(|l| l.iter().copied().collect())
+            .unwrap_or_default();
+        let gaps = loops
+            .iter()
+            .filter(|l| l.len() <= GAP_EDGES && l.iter().all(|c| !outline.contains(c)));
+        gaps.flat_map(|l| (1..l.len() - 1).map(|k| [l[0], l[k], l[k + 1]]))
+            .collect()
     }
 }
 

@@ -132,7 +132,7 @@ fn correlations(readings: &[Reading], lattice: Lattice) -> [f64; 3] {
     [rotation, atr, asymmetry]
 }
 
-// On the aligned lattice, rotation measured 0.689 and the scoliometer 0.705 at 15 mm: below the
+// On the aligned lattice, rotation measured 0.689 and the scoliometer 0.681 at 15 mm: below the
 // issue's 0.75. Removing the trunk's turn about the vertical (the mean or a linear fit of the
 // rotation over the levels, the whole back's best plane or quadric, the width line at the
 // pelvis, the shoulders or their mean) lowers r to 0.52-0.69: that turn itself follows the
@@ -526,7 +526,7 @@ fn dense_rotation(points: &[Vector3<f64>], level: &Level, window: f64) -> f64 {
 /// Where the dots fall on a back is chance: shifted by half a spacing or turned by 7°, the
 /// lattice still gives every scan 14 levels or more, and the correlations move by what the
 /// lattice's sampling of ten backs allows. Measured (rotation, scoliometer, asymmetry):
-/// aligned 0.69/0.71/0.90; these four 0.66-0.77, 0.62-0.71, 0.90-0.91. The rotation's and the
+/// aligned 0.69/0.68/0.90; these four 0.66-0.77, 0.62-0.71, 0.90-0.91. The rotation's and the
 /// asymmetry's floors hold on each, and each back's largest asymmetry keeps its sign (the
 /// side nearer the camera) on every placement. Bent forward, the lumbar sections of some
 /// backs are convex arcs with two mirror axes, and the lattice decides which one the line

@@ -449,6 +449,8 @@ pub enum Given {
     /// Without, thinned to what a dot pattern this far apart (mm) would give, as `deltaz
     /// analyse back` thins a dense cloud.
     Thinned(f64),
+    /// With their rays, each dot missed with this probability (the draw's own).
+    Missing(f64),
 }
 
 /// [`scans`] of the `dots` on each of `models`, the points `given` as they say.
@@ -496,8 +498,18 @@ pub fn scanned(
         .map(|d| frame(d, noise, &delta, &mut r))
         .collect();
     for f in &mut frames {
-        for p in &mut f.points {
-            p.ray = p.ray.filter(|_| given == Given::WithRays);
+        match given {
+            Given::WithRays => {}
+            Given::WithoutRays | Given::Thinned(_) => {
+                f.points.iter_mut().for_each(|p| p.ray = None)
+            }
+            Given::Missing(p) => {
+                let seen = rand_distr::Bernoulli::new(1.0 - p).unwrap();
+                let kept: Vec<usize> = (0..f.points.len())
+                    .filter(|_| seen.sample(&mut r))
+                    .collect();
+                *f = f.only(&kept);
+            }
         }
         if let Given::Thinned(spacing) = given {
             *f = f.thinned(spacing);
@@ -505,4 +517,3 @@ pub fn scanned(
     }
     analyse(&frames, options)
 }
-

@@ -27,6 +27,7 @@ mod selection;
 
 use crate::fit::{fit, Fit, Sample};
 use crate::input::{same_calibration, Frame};
+use crate::mesh::Mesh;
 use crate::spline::Grid;
 use crate::support::Support;
 use crate::SurfaceError;
@@ -377,7 +378,7 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     for (k, b) in backs.iter().enumerate() {
         let pose = surface.poses[k];
         let moved = |i: usize| surface.centre + pose.r * (b.positions[i] - surface.centre) + pose.t;
-        for t in &b.triangles {
+        for t in b.triangles.iter().chain(&Mesh::gaps(&b.triangles)) {
             support.fill(t.map(moved));
         }
     }

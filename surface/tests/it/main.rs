@@ -1,3 +1,4 @@
 //! deltaz-surface's integration tests.
 mod analytic;
 mod bad_input;
+mod mesh;

@@ -1,0 +1,77 @@
+//! The mesh on a flat lattice: a dot not measured inside it is a gap the surface spans, one
+//! on its outline is not; and how irregularly points lie.
+
+use deltaz_surface::mesh::Mesh;
+use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Uniform};
+
+const SPACING: f64 = 10.0;
+
+/// A flat 9 × 9 lattice 1.5 m from the camera, without the nodes `missing`.
+fn lattice(missing: &[[i32; 2]]) -> Mesh {
+    let rays: Vec<[i32; 2]> = (0..9)
+        .flat_map(|j| (0..9).map(move |i| [i, j]))
+        .filter(|r| !missing.contains(r))
+        .collect();
+    let at = |[i, j]: [i32; 2]| Vector3::new(f64::from(i), f64::from(j), 0.0) * SPACING;
+    let points: Vec<_> = rays
+        .iter()
+        .map(|&r| at(r) - Vector3::z() * 1500.0)
+        .collect();
+    Mesh::over_lattice(&points, &rays)
+}
+
+/// The gaps of `mesh` (their triangles' corners, in spacings across x-y) and their area (in
+/// cells).
+fn gaps(mesh: &Mesh) -> (Vec<[[f64; 2]; 3]>, f64) {
+    let corners: Vec<_> = Mesh::gaps(&mesh.triangles)
+        .iter()
+        .map(|t| t.map(|k| [mesh.points[k].x, mesh.points[k].y].map(|c| c / SPACING)))
+        .collect();
+    let area = |[a, b, c]: &[[f64; 2]; 3]| {
+        0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])).abs()
+    };
+    let total = corners.iter().map(area).sum();
+    (corners, total)
+}
+
+#[test]
+fn a_dot_not_measured_is_a_gap_one_on_the_outline_is_not() {
+    assert_eq!(gaps(&lattice(&[])).1, 0.0);
+    // Inside: the half cells about it (two and a half: the cell whose first corner is missing
+    // is not triangulated), within a cell of it.
+    let (corners, area) = gaps(&lattice(&[[4, 4]]));
+    assert!((area - 2.5).abs() < 1e-9, "{area} cells");
+    let near = corners.iter().flatten();
+    assert!(near
+        .clone()
+        .all(|c| (c[0] - 4.0).abs() <= 1.0 && (c[1] - 4.0).abs() <= 1.0));
+    // Two apart inside: two such gaps; on the outline, a notch: nothing.
+    let (_, area) = gaps(&lattice(&[[2, 2], [6, 5], [0, 4], [8, 8]]));
+    assert!((area - 5.0).abs() < 1e-9, "{area} cells");
+}
+
+#[test]
+fn irregularity_grows_as_points_leave_a_grid() {
+    let scattered = |jitter: f64| {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let off = Uniform::new(-jitter * SPACING, jitter * SPACING).unwrap();
+        let points: Vec<Vector3<f64>> = (0..40)
+            .flat_map(|j| (0..40).map(move |i| [i, j]))
+            .map(|[i, j]| {
+                let mut at = |k: i32| f64::from(k - 20) * SPACING + off.sample(&mut rng);
+                Vector3::new(at(i), at(j), -1500.0)
+            })
+            .collect();
+        Mesh::over_directions(&points).irregularity()
+    };
+    assert!(lattice(&[]).irregularity() < 1e-9);
+    let [small, large] = [0.15, 0.5].map(scattered);
+    assert!(
+        (0.08..0.18).contains(&small),
+        "jittered by 0.15: {small:.3}"
+    );
+    assert!((0.3..0.5).contains(&large), "jittered by 0.5: {large:.3}");
+}
