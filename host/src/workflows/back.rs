@@ -294,8 +294,8 @@ const DENSE_MM: f64 = 8.0;
 /// once in 8,000 (a cell of twice, once in 50: a hole in the mesh).
 const THIN_MM: f64 = 10.0;
 /// Points lying more irregularly than this ([`deltaz_surface::mesh::Mesh::irregularity`]) get
-/// a note: on the back
-/// model the σ held at 0.13 and understated the errors 1.6 times at 0.21, 2-3 times at 0.40 ...
+/// a note: on the back model the σ held at 0.13 and understated the errors 1.6 times at 0.21,
+/// 2-3 times at 0.40 ...
 const IRREGULAR: f64 = 0.2;
 /// ... and scattered at random (0.55), sparsely, the symmetry line was 5-20 mm off: refused.
 const SCATTERED: f64 = 0.45;
@@ -341,7 +341,7 @@ pub fn analyse_with(
         fingerprint,
     } = frames(paths, sigma)?;
     let dense = || {
-        let spacing = frames[0].mesh().spacing;
+        let spacing = frames.first()?.mesh().spacing;
         (spacing < DENSE_MM).then(|| {
             let s = (3.0 * spacing).max(THIN_MM).round();
             notes.push(format!(
@@ -351,7 +351,8 @@ pub fn analyse_with(
             s
         })
     };
-    if let Some(s) = thin.or_else(dense) {
+    let thinned = thin.or_else(dense);
+    if let Some(s) = thinned {
         frames = frames.iter().map(|f| f.thinned(s)).collect();
         notes.push(format!(
             "thinned to what a dot pattern {s} mm apart would give: of each {s} mm square of the \
@@ -359,8 +360,11 @@ pub fn analyse_with(
         ));
     }
     let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
-    let names = names.join(", ");
-    let irregularity = frames[0].mesh().irregularity();
+    let mut names = names.join(", ");
+    if let Some(s) = thinned {
+        names += &format!(" (thinned to {s} mm)");
+    }
+    let irregularity = frames.first().map_or(0.0, |f| f.mesh().irregularity());
     let spread = format!(
         "their nearest neighbours' distances spread by {:.0} % of their mean, a grid's by 5 %",
         100.0 * irregularity

@@ -280,7 +280,7 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         1,
     );
     write_cloud(&d.join("ok.ply"), &model, "the camera system", 1);
-    // A cloud without σ, and one of another calibration.
+    // A cloud without σ, one of another calibration, one without points.
     let text = std::fs::read(d.join("ok.ply")).unwrap();
     let other =
         String::from_utf8_lossy(&text[..400]).replace("00000000000000ab", "00000000000000cd");
@@ -294,8 +294,15 @@ fn analyse_back_refuses_what_it_cannot_measure() {
          end_header\n0 0 -1500 1\n20 0 -1500 2\n",
     )
     .unwrap();
-    let cases: [(&[&str], &str); 4] = [
+    std::fs::write(
+        d.join("empty.ply"),
+        "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n\
+         property float z\nend_header\n",
+    )
+    .unwrap();
+    let cases: [(&[&str], &str); 5] = [
         (&["plate.ply"], "needs the camera system"),
+        (&["empty.ply"], "empty.ply: no frame to analyse"),
         (
             &["ok.ply", "other.ply"],
             "frames of one analysis need one calibration",
@@ -405,8 +412,9 @@ fn analyse_back_states_where_the_line_is_not_found() {
 /// was taken to be the camera system; dense and scattered at random, it is thinned (to three
 /// times its spacing, or as asked) with a note; off a grid by up to 0.3 of its spacing, it is
 /// analysed with a note.
-/// Without a σ, behind the camera, given a σ it already has, a σ or spacing of nought, or
-/// scattered at random 20 mm apart, it is refused.
+/// Without a σ, behind the camera, given a σ it already has, a σ or spacing of nought,
+/// scattered at random 20 mm apart, or one point thinned from three, it is refused (the error
+/// says it was thinned).
 #[test]
 fn analyse_back_reads_a_cloud_from_elsewhere() {
     let dir = tempfile::tempdir().unwrap();
@@ -488,7 +496,7 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
     let notes = analysed["notes"].to_string();
     assert!(notes.contains("the points lie irregularly"), "{notes}");
     // Refused: no σ; a σ it already has (a deltaz cloud's); points behind the camera; a σ of
-    // nought; points scattered at random 20 mm apart. Nothing written.
+    // nought; points scattered at random 20 mm apart; one point. Nothing written.
     let scattered = noisy(&scattered_dots(&model, 20.0, 12), 12);
     std::fs::write(d.join("scattered.ply"), plain(&scattered)).unwrap();
     write_cloud(&d.join("own.ply"), &model, "the camera system", 1);
@@ -497,7 +505,13 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
         .map(|p| Vector3::new(p.x, p.y, -p.z))
         .collect();
     std::fs::write(d.join("behind.ply"), plain(&behind)).unwrap();
-    let cases: [(&str, &[&str], &str); 6] = [
+    // A point measured three times: thinned as a dense cloud is, one is left.
+    std::fs::write(
+        d.join("one.ply"),
+        plain(&[Vector3::new(0.0, 0.0, -1500.0); 3]),
+    )
+    .unwrap();
+    let cases: [(&str, &[&str], &str); 7] = [
         ("plain.ply", &[], "--sigma MM"),
         ("own.ply", &["--sigma", "0.4"], "carry their own σ"),
         ("behind.ply", &["--sigma", "0.4"], "behind the camera"),
@@ -508,6 +522,11 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
             "dot spacing is a positive",
         ),
         ("scattered.ply", &["--sigma", "0.4"], "scattered at random"),
+        (
+            "one.ply",
+            &["--sigma", "0.4"],
+            "(thinned to 10 mm): frame 0 has 1 points",
+        ),
     ];
     for (cloud, extra, expect) in cases {
         let mut args = vec!["analyse", "back", "--cloud", cloud, "--out", "x"];
