@@ -89,6 +89,14 @@ pub enum SurfaceError {
         /// The frame's points.
         points: usize,
     },
+    /// The points are scattered at random ([`analysis::SCATTERED`]), too irregularly for a
+    /// back's detail.
+    Scattered {
+        /// The frame (0-based).
+        frame: usize,
+        /// How irregularly its points lie ([`mesh::Mesh::irregularity`]).
+        irregularity: f64,
+    },
     /// The surface fit's normal equations are singular.
     Singular,
     /// No level across the back where a symmetry line could be found.
@@ -154,6 +162,18 @@ impl std::fmt::Display for SurfaceError {
                 }
                 Ok(())
             }
+            SurfaceError::Scattered {
+                frame,
+                irregularity,
+            } => write!(
+                f,
+                "frame {frame}: the points are scattered at random (their nearest neighbours' \
+                 distances spread by {:.0} % of their mean, a grid's by 5 %), too irregularly to \
+                 resolve a back: sampled so, the back model's symmetry line came out 5-30 mm \
+                 off. A dense scan thinned evenly (to three times its spacing), or a dot \
+                 pattern, samples evenly",
+                100.0 * irregularity
+            ),
             SurfaceError::Singular => {
                 f.write_str("the surface fit is singular (too few points spread over the back)")
             }

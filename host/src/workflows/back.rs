@@ -295,10 +295,9 @@ const DENSE_MM: f64 = 8.0;
 const THIN_MM: f64 = 10.0;
 /// Points lying more irregularly than this ([`deltaz_surface::mesh::Mesh::irregularity`]) get
 /// a note: on the back model the σ held at 0.13 and understated the errors 1.6 times at 0.21,
-/// 2-3 times at 0.40 ...
+/// 2-3 times at 0.40 (the analysis refuses points scattered at random,
+/// [`deltaz_surface::analysis::SCATTERED`]).
 const IRREGULAR: f64 = 0.2;
-/// ... and scattered at random (0.55), sparsely, the symmetry line was 5-20 mm off: refused.
-const SCATTERED: f64 = 0.45;
 
 /// `deltaz analyse back`: the clouds at `paths` analysed with `options`, their points'
 /// covariance from `system` (its path) or one σ `given` for all (or else their own), each
@@ -364,25 +363,15 @@ pub fn analyse_with(
     if let Some(s) = thinned {
         names += &format!(" (thinned to {s} mm)");
     }
-    let irregularity = frames.first().map_or(0.0, |f| f.mesh().irregularity());
-    let spread = format!(
-        "their nearest neighbours' distances spread by {:.0} % of their mean, a grid's by 5 %",
-        100.0 * irregularity
-    );
-    if irregularity > SCATTERED {
-        bail!(
-            "{names}: the points are scattered at random ({spread}) and too sparsely to resolve a \
-             back: sampled so, the back model's symmetry line came out 5-20 mm off. A scan \
-             denser than {DENSE_MM} mm is thinned evenly; a dot pattern samples evenly"
-        );
-    }
-    if irregularity > IRREGULAR {
+    let analysis = analyse(&frames, options).map_err(|e| anyhow::anyhow!("{names}: {e}"))?;
+    if analysis.irregularity > IRREGULAR {
         notes.push(format!(
-            "the points lie irregularly ({spread}): the σ were tested on samplings within 13 %; \
-             at 21 % they understated the errors 1.6 times on the back model, at 40 % 2-3 times"
+            "the points lie irregularly (their nearest neighbours' distances spread by {:.0} % of \
+             their mean, a grid's by 5 %): the σ were tested on samplings within 13 %; at 21 % \
+             they understated the errors 1.6 times on the back model, at 40 % 2-3 times",
+            100.0 * analysis.irregularity
         ));
     }
-    let analysis = analyse(&frames, options).map_err(|e| anyhow::anyhow!("{names}: {e}"))?;
     let fingerprint = match sigma {
         PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
         _ => fingerprint,

@@ -225,14 +225,7 @@ fn without_rays(scans: &[Patient], readings: &[Reading]) {
         }
         let a = analyse(&[frame], &Options::standing())
             .unwrap_or_else(|e| panic!("{} without rays: {e}", p.name));
-        let mut change = Errors::default();
-        changes(
-            &mut change,
-            &reading.upright.levels,
-            &a.levels,
-            ROTATION,
-            0.0,
-        );
+        let change: Errors = changes(&reading.upright.levels, &a.levels, ROTATION, 0.0).collect();
         let (z, n) = (change.z(), change.count());
         eprintln!(
             "{} without rays: {} levels ({} with them), RMS change/σ {z:.2} over {n}, largest \
@@ -283,14 +276,8 @@ fn turned(scans: &[Patient], original: &[Reading]) {
     for theta in [-3.5_f64, -2.5, 2.5, 3.5] {
         for (scan, reading) in scans.iter().zip(original) {
             let a = analysed(scan, theta);
-            let mut change = Errors::default();
-            changes(
-                &mut change,
-                &reading.upright.levels,
-                &a.levels,
-                ROTATION,
-                theta,
-            );
+            let change: Errors =
+                changes(&reading.upright.levels, &a.levels, ROTATION, theta).collect();
             eprintln!(
                 "{} turned {theta:+}°: {} levels, rotation change − turn {:+.2}° mean, RMS/σ {:.2} over {} levels",
                 reading.name,
@@ -609,13 +596,17 @@ fn at(levels: &[Level], y: f64, field: Field) -> Option<(f64, f64)> {
 }
 
 /// The changes of `field` from the levels `from` to `to` (interpolated there, [`at`]), less
-/// `expected`, each with the σ of its two values, pushed into `errors`.
-fn changes(errors: &mut Errors, from: &[Level], to: &[Level], field: Field, expected: f64) {
-    for l in from {
-        if let (Some((a, sa)), Some((b, sb))) = (field(l), at(to, l.y, field)) {
-            errors.push(b - a - expected, sa.hypot(sb));
-        }
-    }
+/// `expected`, each with the σ of its two values.
+fn changes<'a>(
+    from: &'a [Level],
+    to: &'a [Level],
+    field: Field,
+    expected: f64,
+) -> impl Iterator<Item = (f64, f64)> + 'a {
+    from.iter().filter_map(move |l| {
+        let ((a, sa), (b, sb)) = (field(l)?, at(to, l.y, field)?);
+        Some((b - a - expected, sa.hypot(sb)))
+    })
 }
 
 /// Each patient's profiles on every two lattice placements agree within their σ, level by
@@ -635,13 +626,16 @@ fn agree_within_sigma(placed: &[Vec<Reading>]) {
     ];
     for (i, patient) in placed[0].iter().enumerate() {
         for (name, bent, field) in fields {
-            let mut change = Errors::default();
-            for (a, ra) in placed.iter().enumerate() {
-                for rb in &placed[a + 1..] {
+            let pairs = placed
+                .iter()
+                .enumerate()
+                .flat_map(|(a, ra)| placed[a + 1..].iter().map(move |rb| (ra, rb)));
+            let change: Errors = pairs
+                .flat_map(|(ra, rb)| {
                     let (la, lb) = (&ra[i].pose(bent).levels, &rb[i].pose(bent).levels);
-                    changes(&mut change, la, lb, field, 0.0);
-                }
-            }
+                    changes(la, lb, field, 0.0)
+                })
+                .collect();
             let (z, n) = (change.z(), change.count());
             eprintln!(
                 "{}: {name}, RMS change/σ between placements {z:.2} ({n} levels)",

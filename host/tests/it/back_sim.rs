@@ -190,6 +190,17 @@ impl Errors {
     }
 }
 
+/// Errors with their σ, collected.
+impl FromIterator<(f64, f64)> for Errors {
+    fn from_iter<I: IntoIterator<Item = (f64, f64)>>(errors: I) -> Self {
+        let mut collected = Errors::default();
+        for (error, sigma) in errors {
+            collected.push(error, sigma);
+        }
+        collected
+    }
+}
+
 /// The analysis frame of an analysis, for the model's truth.
 pub fn axes_of(a: &BackAnalysis) -> Axes {
     Axes {

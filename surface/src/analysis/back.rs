@@ -1,7 +1,7 @@
 //! Finding a frame's back (the largest piece of its mesh, checked for a back's shape)
 //! and the analysis axes.
 
-use super::{Axes, Options, Posture, MIN_POINTS, PLANE_RMS_MM};
+use super::{Axes, Options, Posture, MIN_POINTS, PLANE_RMS_MM, SCATTERED};
 use crate::fit::Sample;
 use crate::input::Frame;
 use crate::SurfaceError;
@@ -13,12 +13,16 @@ pub(super) struct Back {
     pub(super) kept: Vec<usize>,
     pub(super) triangles: Vec<[usize; 3]>,
     pub(super) spacing: f64,
+    /// How irregularly its points lie ([`crate::mesh::Mesh::irregularity`]).
+    pub(super) irregularity: f64,
 }
 
-/// A frame's back piece: its points, its triangles and the dot spacing.
-type Piece = (Vec<usize>, Vec<[usize; 3]>, f64);
+/// A frame's back piece: its points, its triangles, the dot spacing and how irregularly the
+/// points lie.
+type Piece = (Vec<usize>, Vec<[usize; 3]>, f64, f64);
 
-/// The back in a frame: the largest smooth piece of its mesh.
+/// The back in a frame: the largest smooth piece of its mesh, of points not scattered at
+/// random ([`SCATTERED`]).
 pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceError> {
     if frame.points.len() < MIN_POINTS {
         return Err(SurfaceError::TooFewPoints {
@@ -38,7 +42,14 @@ pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceErr
             ),
         });
     }
-    Ok((kept, triangles, mesh.spacing))
+    let irregularity = mesh.irregularity();
+    if irregularity > SCATTERED {
+        return Err(SurfaceError::Scattered {
+            frame: index,
+            irregularity,
+        });
+    }
+    Ok((kept, triangles, mesh.spacing, irregularity))
 }
 
 /// The principal directions of points (largest spread first) and their RMS distance from

@@ -142,6 +142,7 @@ impl Measured<'_> {
             points: 0,
             calibration: None,
             spacing_mm: spacing,
+            irregularity: 0.0,
             axes: Axes {
                 across: [1.0, 0.0, 0.0],
                 axis: [0.0, 1.0, 0.0],

@@ -1,8 +1,9 @@
 //! The mesh on a flat lattice: a dot not measured inside it is a gap the surface spans, one
-//! on its outline is not; and how irregularly points lie.
+//! on its outline is not; how irregularly points lie, and points scattered at random refused.
 
 use deltaz_surface::mesh::Mesh;
-use nalgebra::Vector3;
+use deltaz_surface::{analyse, CommonShare, Frame, Options, ScanPoint, SurfaceError};
+use nalgebra::{Matrix3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Uniform};
@@ -74,4 +75,30 @@ fn irregularity_grows_as_points_leave_a_grid() {
         "jittered by 0.15: {small:.3}"
     );
     assert!((0.3..0.5).contains(&large), "jittered by 0.5: {large:.3}");
+}
+
+/// Points scattered at random are refused by the analysis, naming how irregularly they lie.
+#[test]
+fn points_scattered_at_random_are_refused() {
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let field = Uniform::new(-200.0, 200.0).unwrap();
+    let points = (0..1600)
+        .map(|_| ScanPoint {
+            position: Vector3::new(field.sample(&mut rng), field.sample(&mut rng), -1500.0),
+            covariance: Matrix3::identity() * 0.16,
+            ray: None,
+        })
+        .collect();
+    let frame = Frame {
+        points,
+        calibration: None,
+        common: CommonShare::None,
+    };
+    match analyse(&[frame], &Options::standing()) {
+        Err(e @ SurfaceError::Scattered { irregularity, .. }) => {
+            assert!(irregularity > 0.45, "{irregularity}");
+            assert!(e.to_string().contains("scattered at random"), "{e}");
+        }
+        other => panic!("{other:?}"),
+    }
 }
