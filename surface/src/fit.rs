@@ -14,6 +14,7 @@
 //! var = Σ w_i y_i² + (Σ w_i y_i u_i)ᵀ Σ_c (Σ w_i y_i u_i), y_i = j_iᵀ N⁻¹ g: the sandwich,
 //! which the penalty keeps below N⁻¹.
 
+use crate::mesh::median;
 use crate::spline::{Grid, Stencil, D};
 use crate::SurfaceError;
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
@@ -48,6 +49,15 @@ impl Pose {
     }
 }
 
+/// A residual beyond this many times the residuals' robust spread may be wild ([`Fit::wild`]):
+/// on the back model's scans the largest of a smooth back's were 3.8 times it where alone, 5.9
+/// at the arm's crease (with neighbours as large); a point 5-30 mm off along the line of sight
+/// left 6.7-19.
+pub(crate) const WILD: f64 = 5.0;
+/// ... and is, where its neighbours' residuals are under this share of it in RMS: 0.45 at the
+/// arm's crease, 0.14-0.33 about a point 5-30 mm off.
+pub(crate) const ALONE: f64 = 0.4;
+
 /// One residual's linearisation.
 #[derive(Debug, Clone)]
 struct Row {
@@ -62,6 +72,8 @@ struct Row {
     r: f64,
     /// Where it lies on the surface, (a, v).
     at: [f64; 2],
+    /// Its sample's index.
+    sample: usize,
 }
 
 /// The fitted surface and poses, with what their covariance needs.
@@ -99,8 +111,9 @@ struct State<'a> {
 }
 
 impl State<'_> {
-    /// The residual of a sample, None when its point falls off the grid.
-    fn row(&self, s: &Sample) -> Option<Row> {
+    /// The residual of sample i, None when its point falls off the grid.
+    fn row(&self, i: usize) -> Option<Row> {
+        let s = &self.samples[i];
         let pose = &self.poses[s.frame];
         let x = pose.r * (s.p - self.centre);
         let q = self.centre + x + pose.t;
@@ -119,6 +132,7 @@ impl State<'_> {
             u: s.common.transpose() * jp,
             r: q.z - stencil.apply(&self.coeffs),
             at: [q.x, q.y],
+            sample: i,
         })
     }
 
@@ -129,8 +143,11 @@ impl State<'_> {
         let mut a = CooMatrix::new(n, n);
         let mut b = DVector::zeros(n);
         let mut idx: Vec<(usize, f64)> = Vec::with_capacity(22);
-        for s in self.samples.iter().filter(|s| frames.contains(&s.frame)) {
-            let Some(row) = self.row(s) else { continue };
+        for (i, s) in self.samples.iter().enumerate() {
+            if !frames.contains(&s.frame) {
+                continue;
+            }
+            let Some(row) = self.row(i) else { continue };
             idx.clear();
             if which.coeffs {
                 let terms = row.stencil.index.iter().zip(&row.stencil.weight);
@@ -241,7 +258,7 @@ pub(crate) fn fit(
     }
     let (a, _) = state.normal(&joint, &all);
     let normal = CscCholesky::factor(&a).map_err(|_| SurfaceError::Singular)?;
-    let rows: Vec<Row> = samples.iter().filter_map(|s| state.row(s)).collect();
+    let rows: Vec<Row> = (0..samples.len()).filter_map(|i| state.row(i)).collect();
     Ok(Fit {
         grid,
         coeffs: state.coeffs,
@@ -379,6 +396,31 @@ impl Fit {
             pose.into_iter()
                 .flat_map(move |o| (0..6).map(move |j| (o + j, row.pose[j]))),
         )
+    }
+
+    /// The samples whose residual is wild: its normalised value beyond [`WILD`] times the
+    /// normalised residuals' robust spread (1.4826 × their median magnitude), and its
+    /// neighbours' within `radius` under [`ALONE`] of it in RMS (detail of the back the surface
+    /// does not follow leaves large residuals side by side; a wild point stands alone).
+    pub fn wild(&self, radius: f64) -> Vec<usize> {
+        let z: Vec<f64> = self.rows.iter().map(|r| r.r.abs() * r.w.sqrt()).collect();
+        let spread = 1.4826 * median(z.clone());
+        // The RMS of the normalised residuals within `radius` of residual i, but its own.
+        let near = |i: usize| {
+            let at = self.rows[i].at;
+            let around: Vec<f64> = (0..z.len())
+                .filter(|&j| {
+                    let b = self.rows[j].at;
+                    j != i && (b[0] - at[0]).hypot(b[1] - at[1]) < radius
+                })
+                .map(|j| z[j] * z[j])
+                .collect();
+            (around.iter().sum::<f64>() / around.len().max(1) as f64).sqrt()
+        };
+        (0..z.len())
+            .filter(|&i| z[i] > WILD * spread && near(i) < ALONE * z[i])
+            .map(|i| self.rows[i].sample)
+            .collect()
     }
 
     /// The normalised residuals' RMS: about 1 when the points' σ and the surface are right.

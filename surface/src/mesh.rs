@@ -33,9 +33,9 @@ const GAP_EDGES: usize = 8;
 const CREASE: f64 = 45.0 * std::f64::consts::PI / 180.0;
 
 impl Mesh {
-    /// Each lattice cell whose corners were measured makes two triangles (split along the
-    /// shorter diagonal); the median lattice edge is the spacing ([`Mesh::kept`] leaves out
-    /// jumps and oblique triangles).
+    /// Each lattice cell makes two triangles where its four corners were measured (split along
+    /// the shorter diagonal) and one where three were; the median lattice edge is the spacing
+    /// ([`Mesh::kept`] leaves out jumps and oblique triangles).
     pub fn over_lattice(points: &[Vector3<f64>], rays: &[[i32; 2]]) -> Self {
         let node: HashMap<[i32; 2], usize> =
             rays.iter().enumerate().map(|(i, r)| (*r, i)).collect();
@@ -46,8 +46,14 @@ impl Mesh {
                 edges.push((points[n] - points[k]).norm());
             }
         }
+        // Every cell with a measured corner: a cell missing its first corner still has one
+        // triangle.
+        let cells: BTreeSet<[i32; 2]> = rays
+            .iter()
+            .flat_map(|&[i, j]| [[i, j], [i - 1, j], [i, j - 1], [i - 1, j - 1]])
+            .collect();
         let mut candidates = Vec::new();
-        for &[i, j] in rays {
+        for [i, j] in cells {
             let corners = (at(i, j), at(i + 1, j), at(i, j + 1), at(i + 1, j + 1));
             match corners {
                 (Some(a), Some(b), Some(c), Some(d)) => {
@@ -249,10 +255,26 @@ impl Mesh {
         gaps.flat_map(|l| (1..l.len() - 1).map(|k| [l[0], l[k], l[k + 1]]))
             .collect()
     }
+
+    /// The points on the rim of `triangles`: on an edge no other triangle shares (whichever
+    /// way they turn: a gap's fan turns against the triangles about it).
+    pub fn rim(triangles: &[[usize; 3]]) -> BTreeSet<usize> {
+        let mut uses: HashMap<[usize; 2], usize> = HashMap::new();
+        for t in triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                *uses.entry([a.min(b), a.max(b)]).or_default() += 1;
+            }
+        }
+        uses.into_iter()
+            .filter(|&(_, n)| n == 1)
+            .flat_map(|(edge, _)| edge)
+            .collect()
+    }
 }
 
 /// The median of `values` (0 without any).
-fn median(mut values: Vec<f64>) -> f64 {
+pub(crate) fn median(mut values: Vec<f64>) -> f64 {
     values.sort_by(f64::total_cmp);
     values.get(values.len() / 2).copied().unwrap_or(0.0)
 }

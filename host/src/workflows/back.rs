@@ -372,6 +372,23 @@ pub fn analyse_with(
             100.0 * analysis.irregularity
         ));
     }
+    if !analysis.wild.is_empty() {
+        let listed: Vec<String> = analysis
+            .wild
+            .iter()
+            .map(|&[frame, point]| {
+                let p = frames[frame].points[point].position;
+                format!("frame {frame} at ({:.1}, {:.1}, {:.1})", p.x, p.y, p.z)
+            })
+            .collect();
+        notes.push(format!(
+            "{} points left out of the surface fit as wild (each off the surface by over 5 times \
+             the residuals' spread where its neighbours' were not: a dot misidentified, a \
+             highlight, a ragged edge), in the camera system (mm): {}",
+            listed.len(),
+            listed.join(", ")
+        ));
+    }
     let fingerprint = match sigma {
         PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
         _ => fingerprint,

@@ -411,7 +411,7 @@ fn analyse_back_states_where_the_line_is_not_found() {
 /// --sigma it is analysed (meshed over what the camera sees), and the report says its frame
 /// was taken to be the camera system; dense and scattered at random, it is thinned (to three
 /// times its spacing, or as asked) with a note; off a grid by up to 0.3 of its spacing, it is
-/// analysed with a note.
+/// analysed with a note; with three points moved off the surface, they are left out as wild.
 /// Without a σ, behind the camera, given a σ it already has, a σ or spacing of nought,
 /// scattered at random 20 mm apart, or one point thinned from three, it is refused (the error
 /// says it was thinned).
@@ -495,6 +495,44 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
     ));
     let notes = analysed["notes"].to_string();
     assert!(notes.contains("the points lie irregularly"), "{notes}");
+    // Three points moved 12 mm toward the camera (misidentified dots): left out of the fit as
+    // wild, exactly those, listed in the analysis and placed by a note.
+    let nearest = |x: f64, y: f64| {
+        (0..points.len())
+            .min_by(|&i, &j| {
+                let d = |k: usize| (points[k].x - x).hypot(points[k].y - y);
+                d(i).total_cmp(&d(j))
+            })
+            .unwrap()
+    };
+    let mut wild = [
+        nearest(40.0, 50.0),
+        nearest(-50.0, -80.0),
+        nearest(60.0, 150.0),
+    ];
+    wild.sort_unstable();
+    let mut moved = points.clone();
+    for &i in &wild {
+        moved[i].z += 12.0;
+    }
+    std::fs::write(d.join("moved.ply"), plain(&moved)).unwrap();
+    let analysed = json(&deltaz_in(
+        d,
+        &[
+            &args[..3],
+            &["moved.ply", "--sigma", "0.4", "--out", "w", "--json"],
+        ]
+        .concat(),
+    ));
+    assert_eq!(analysed["wild"], serde_json::json!(wild.map(|i| [0, i])));
+    let notes = analysed["notes"].to_string();
+    let p = moved[wild[0]];
+    let at = format!("frame 0 at ({:.1}, {:.1}, {:.1})", p.x, p.y, p.z);
+    assert!(
+        notes.contains("3 points left out of the surface fit as wild") && notes.contains(&at),
+        "{notes}"
+    );
+    line_holds(&analysed, &model);
     // Refused: no σ; a σ it already has (a deltaz cloud's); points behind the camera; a σ of
     // nought; points scattered at random 20 mm apart; one point. Nothing written.
     let scattered = noisy(&scattered_dots(&model, 20.0, 12), 12);

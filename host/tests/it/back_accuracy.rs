@@ -22,7 +22,7 @@ fn report(what: &str, e: &IndexErrors) {
     eprintln!(
         "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}° \
          (its error {:.3}°, {:.2}), RMS rotation {:.3}° ({:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2}); \
-         levels left out {} in {} draws",
+         levels left out {}, points left out as wild {} in {} draws",
         e.symmetry_x.rms(),
         e.symmetry_x.z(),
         e.rotation.rms(),
@@ -37,6 +37,7 @@ fn report(what: &str, e: &IndexErrors) {
         e.atr_max.rms(),
         e.atr_max.z(),
         e.left_out,
+        e.wild,
         e.largest_rotation.len(),
     );
 }
@@ -205,19 +206,29 @@ fn a_cloud_from_elsewhere() {
     }
 }
 
-/// Dots missed, one in fifty at random (identification losing some). Each gap they leave in
-/// the mesh is spanned (deltaz-surface's `Mesh::gaps`): on three deformities, standing and bent
-/// forward, no line is mostly lost and the symmetry line stays within 5 mm RMS (measured
-/// 0.5-4.4 mm; without the gaps spanned 7.6-11.4 mm, 1-6 lines of 30 mostly lost, the
-/// scoliometer 1.7-9.3° off). Bent forward on the double curve and the straight back the
-/// issue's bars hold (line 0.67/0.52 mm, z 1.11/0.87; rotation 0.26/0.24°, z 1.05/0.98; the
-/// scoliometer 0.30/0.28°, z 1.11/1.04). Standing, and bent on the thoracic curve, they do not:
-/// in a few draws of 30 a stretch of two or three levels takes an axis 35-43 mm aside (line
-/// 2.5-4.4 mm, z 3.2-4.5; a straight back's largest rotation up to 7.2°), its steps to the rest
-/// of the line (0.6-2.1 mm across per mm along) no steeper than the real forward-bent backs'
-/// own between levels (0.7-1.5): reported, not asserted.
+/// Dots missed, one in fifty at random (identification losing some), on three deformities
+/// standing and bent forward: each gap they leave in the mesh is spanned (deltaz-surface's
+/// `Mesh::gaps`) and the issue's bars hold (without the gaps spanned the line was 7.6-11.4 mm
+/// RMS off, 1-6 lines of 30 mostly lost, the scoliometer 1.7-9.3° off).
 #[test]
 fn missed_dots() {
+    odd_dots("one dot in fifty missed", Given::Missing(0.02), 123);
+}
+
+/// Points off the surface, one in a hundred at random moved 5-30 mm along the line of sight (a
+/// misidentified dot, a centroid pulled by a highlight), on three deformities standing and bent
+/// forward: they are left out of the fit as wild and the issue's bars hold (without, on the
+/// double curve and the straight back, the line was 1.0-1.3 mm RMS off with error/σ 1.3-1.9, the
+/// rotation's error/σ 2.1-2.3, and a straight back read up to 5.2° of rotation).
+#[test]
+fn wild_points() {
+    odd_dots("one point in a hundred off", Given::Wrong(0.01), 321);
+}
+
+/// The issue's bars for the line, the rotation and bent forward the scoliometer on the double
+/// curve, the thoracic curve and the straight back standing and bent forward, their dots
+/// `given` as it says.
+fn odd_dots(how: &str, given: Given, seed: u64) {
     for deformity in [
         Deformity::double(),
         Deformity::thoracic(),
@@ -229,26 +240,18 @@ fn missed_dots() {
             (standing, Options::standing()),
             (bent, Options::forward_bent()),
         ] {
-            let name = model.deformity.name;
-            let what = format!("{name} {:?}, one dot in fifty missed", options.posture);
+            let what = format!("{} {:?}, {how}", model.deformity.name, options.posture);
             let dots = [back_dots(&model, SPACING)];
-            let given = Given::Missing(0.02);
             let e = scans_of(
                 std::slice::from_ref(&model),
                 &dots,
                 given,
                 DRAWS,
-                123,
+                seed,
                 &options,
             );
-            report(&what, &e);
-            let line = e.symmetry_x.rms();
-            assert!(
-                e.lines_lost == 0 && line <= 5.0,
-                "{what}: line {line:.2} mm RMS"
-            );
-            if options.posture == Posture::ForwardBent && name != "thoracic" {
-                check_line_and_rotation(&what, &e);
+            check(&what, &e);
+            if options.posture == Posture::ForwardBent {
                 assert!(e.atr.rms() <= 0.5, "{what}: ATR RMS {:.3}°", e.atr.rms());
             }
         }

@@ -110,10 +110,10 @@ fn fewest_levels(readings: &[Reading]) -> usize {
 }
 
 /// r(largest rotation, Cobb), r(scoliometer, Cobb) and r(largest asymmetry, Cobb) on
-/// `lattice`, printed, with the floors every lattice holds: 14 levels or more on every scan,
-/// r(rotation) ≥ 0.6 and r(asymmetry) ≥ 0.8. (Patient 10's upright scan keeps 14 on two
-/// placements: the trunk's left side is out of view over 140 mm above its lowest level, which
-/// is then a lone level and left out.)
+/// `lattice`, printed, with the floors every lattice holds: 14 levels or more on every scan
+/// (the fewest 15-18 over the five placements), r(rotation) ≥ 0.6 and r(asymmetry) ≥ 0.8.
+/// (Patient 10's upright scan keeps few: the trunk's left side is out of view over 140 mm above
+/// its lowest level, which is then a lone level and left out.)
 fn correlations(readings: &[Reading], lattice: Lattice) -> [f64; 3] {
     let measures: [fn(&Reading) -> f64; 3] =
         [Reading::rotation, Reading::scoliometer, Reading::asymmetry];

@@ -249,6 +249,8 @@ pub struct IndexErrors {
     pub left_out: usize,
     /// The draws whose line is mostly lost (`BackAnalysis::line_mostly_lost`).
     pub lines_lost: usize,
+    /// The points left out of the fit as wild, all draws.
+    pub wild: usize,
 }
 
 /// The signed value of largest magnitude.
@@ -268,6 +270,7 @@ impl IndexErrors {
         let axes = axes_of(a);
         self.left_out += a.levels_left_out.len();
         self.lines_lost += usize::from(a.line_mostly_lost());
+        self.wild += a.wild.len();
         let mut truth = Vec::new();
         for l in &a.levels {
             let (x, n) = model
@@ -462,6 +465,9 @@ pub enum Given {
     Thinned(f64),
     /// With their rays, each dot missed with this probability (the draw's own).
     Missing(f64),
+    /// With their rays, each dot's point off with this probability: moved along the camera's
+    /// line of sight by 5-30 mm either way (a centroid pulled by a neighbour, a highlight).
+    Wrong(f64),
 }
 
 /// [`scans`] of the `dots` on each of `models`, the points `given` as they say.
@@ -520,6 +526,17 @@ pub fn scanned(
                     .filter(|_| seen.sample(&mut r))
                     .collect();
                 *f = f.only(&kept);
+            }
+            Given::Wrong(p) => {
+                let wrong = rand_distr::Bernoulli::new(p).unwrap();
+                let by = rand_distr::Uniform::new(5.0, 30.0).unwrap();
+                let away = rand_distr::Bernoulli::new(0.5).unwrap();
+                for q in &mut f.points {
+                    if wrong.sample(&mut r) {
+                        let sign = if away.sample(&mut r) { 1.0 } else { -1.0 };
+                        q.position += q.position.normalize() * sign * by.sample(&mut r);
+                    }
+                }
             }
         }
         if let Given::Thinned(spacing) = given {

@@ -143,6 +143,7 @@ impl Measured<'_> {
             calibration: None,
             spacing_mm: spacing,
             irregularity: 0.0,
+            wild: Vec::new(),
             axes: Axes {
                 across: [1.0, 0.0, 0.0],
                 axis: [0.0, 1.0, 0.0],

@@ -198,6 +198,12 @@ pub struct BackAnalysis {
     /// a lattice's 0.05; at most [`SCATTERED`]).
     #[serde(default)]
     pub irregularity: f64,
+    /// The points left out of the surface fit as wild (frame, index in it): each lay off the
+    /// surface fitted with it by more than 5 times the residuals' robust spread, where its
+    /// neighbours' did not (a dot misidentified, a centroid pulled by a highlight, a scan's
+    /// ragged edge).
+    #[serde(default)]
+    pub wild: Vec<[usize; 2]>,
     /// The analysis frame.
     pub axes: Axes,
     /// Half-width of the symmetry window.
@@ -308,11 +314,35 @@ pub const MIN_WIDTH: f64 = 0.6;
 /// apart, 23-29 mm off 5 mm apart. A grid whose points stray by up to half its spacing reads
 /// 0.40 (its σ understated the errors 2-3 times), by up to 0.15 0.13 (its σ held).
 pub const SCATTERED: f64 = 0.45;
+/// A point's neighbours, whose residuals say whether its own is wild, lie within this many
+/// dot spacings ([`crate::fit::Fit::wild`]).
+const WILD_RADIUS: f64 = 2.5;
 /// The most coefficients the surface has (its knots spread beyond the dot spacing then).
 const MAX_COEFFICIENTS: usize = 1600;
 /// Analyses one subject's frames (one calibration): registers them onto the first, fits one
-/// surface to all, and measures it.
+/// surface to all, and measures it. Points the fit finds wild ([`BackAnalysis::wild`]) are left
+/// out of it, and it is made again, until none is; they stay in the mesh, which says where the
+/// back was measured.
 pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, SurfaceError> {
+    let mut wild = Vec::new();
+    loop {
+        let (mut analysis, found) = measure(frames, options, &wild)?;
+        if found.is_empty() {
+            wild.sort_unstable();
+            analysis.wild = wild;
+            return Ok(analysis);
+        }
+        wild.extend(found);
+    }
+}
+
+/// One analysis of `frames` without the points `wild` (frame, index) in its fit, with the
+/// points it finds wild among the rest.
+fn measure(
+    frames: &[Frame],
+    options: &Options,
+    wild: &[[usize; 2]],
+) -> Result<(BackAnalysis, Vec<[usize; 2]>), SurfaceError> {
     same_calibration(frames)?;
     for (k, f) in frames.iter().enumerate() {
         f.validate(k)?;
@@ -350,18 +380,19 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     for (k, b) in backs.iter().enumerate() {
         check_shape(b, k)?;
     }
-    let samples: Vec<Sample> = backs
+    let origin: Vec<[usize; 2]> = backs
         .iter()
-        .zip(frames)
         .enumerate()
-        .flat_map(|(k, (b, f))| {
-            let rot_d = &rot_d;
-            b.kept.iter().map(move |&i| Sample {
-                p: b.positions[i],
-                cov: rot * f.points[i].covariance * rot.transpose(),
-                common: rot_d * f.common.sensitivity(i),
-                frame: k,
-            })
+        .flat_map(|(k, b)| b.kept.iter().map(move |&i| [k, i]))
+        .filter(|o| !wild.contains(o))
+        .collect();
+    let samples: Vec<Sample> = origin
+        .iter()
+        .map(|&[k, i]| Sample {
+            p: backs[k].positions[i],
+            cov: rot * frames[k].points[i].covariance * rot.transpose(),
+            common: &rot_d * frames[k].common.sensitivity(i),
+            frame: k,
         })
         .collect();
     let spacing = backs[0].spacing;
@@ -384,14 +415,29 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
         lambda,
         frames[0].common.covariance(),
     )?;
+    // Each back's surface: its triangles and its gaps spanned.
+    let spanned: Vec<Vec<[usize; 3]>> = backs
+        .iter()
+        .map(|b| [b.triangles.clone(), Mesh::gaps(&b.triangles)].concat())
+        .collect();
     let mut support = Support::new(lo, hi, step / 4.0);
     for (k, b) in backs.iter().enumerate() {
         let pose = surface.poses[k];
         let moved = |i: usize| surface.centre + pose.r * (b.positions[i] - surface.centre) + pose.t;
-        for t in b.triangles.iter().chain(&Mesh::gaps(&b.triangles)) {
+        for t in &spanned[k] {
             support.fill(t.map(moved));
         }
     }
+    // Wild points within the surface: along its rim the surface turns away from its fit (on a
+    // real back, each point of a flank found wild once the last was left out), and a point
+    // there has neighbours on one side only.
+    let rims: Vec<_> = spanned.iter().map(|t| Mesh::rim(t)).collect();
+    let wild = surface
+        .wild(WILD_RADIUS * spacing)
+        .into_iter()
+        .map(|i| origin[i])
+        .filter(|&[k, i]| !rims[k].contains(&i))
+        .collect();
     let measured = Measured {
         fit: &surface,
         support: &support,
@@ -404,7 +450,7 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     analysis.calibration = frames[0].calibration;
     analysis.axes = axes;
     analysis.sway = sway(&surface);
-    Ok(analysis)
+    Ok((analysis, wild))
 }
 fn sway(fit: &Fit) -> Vec<Sway> {
     (1..fit.poses.len())

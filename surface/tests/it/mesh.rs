@@ -41,17 +41,17 @@ fn gaps(mesh: &Mesh) -> (Vec<[[f64; 2]; 3]>, f64) {
 #[test]
 fn a_dot_not_measured_is_a_gap_one_on_the_outline_is_not() {
     assert_eq!(gaps(&lattice(&[])).1, 0.0);
-    // Inside: the half cells about it (two and a half: the cell whose first corner is missing
-    // is not triangulated), within a cell of it.
+    // Inside: the half cell of each cell about it that has the dot as a corner (the diamond
+    // of its four neighbours), within a cell of it.
     let (corners, area) = gaps(&lattice(&[[4, 4]]));
-    assert!((area - 2.5).abs() < 1e-9, "{area} cells");
+    assert!((area - 2.0).abs() < 1e-9, "{area} cells");
     let near = corners.iter().flatten();
     assert!(near
         .clone()
         .all(|c| (c[0] - 4.0).abs() <= 1.0 && (c[1] - 4.0).abs() <= 1.0));
     // Two apart inside: two such gaps; on the outline, a notch: nothing.
     let (_, area) = gaps(&lattice(&[[2, 2], [6, 5], [0, 4], [8, 8]]));
-    assert!((area - 5.0).abs() < 1e-9, "{area} cells");
+    assert!((area - 4.0).abs() < 1e-9, "{area} cells");
 }
 
 #[test]
