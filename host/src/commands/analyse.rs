@@ -3,7 +3,7 @@
 use super::args::OutputArgs;
 use crate::io::analysis_file::read_report;
 use crate::io::atomic::write_all_atomic;
-use crate::report::back_report::{indices, line_note, plus_minus, report_html};
+use crate::report::back_report::{comparison_notes, indices, line_note, plus_minus, report_html};
 use crate::report::console::Output;
 use crate::workflows::back::analyse_clouds;
 use anyhow::Result;
@@ -140,31 +140,10 @@ pub fn exec(what: What) -> Result<()> {
         } => {
             let output = Output::from(output);
             let (a, b) = (read_report(&before)?, read_report(&after)?);
-            if a.fingerprint.is_some() && b.fingerprint.is_some() && a.fingerprint != b.fingerprint
-            {
-                output.status(format!(
-                    "note: measured with two calibrations ({} and {})",
-                    a.fingerprint.as_deref().unwrap_or_default(),
-                    b.fingerprint.as_deref().unwrap_or_default()
-                ));
-            }
             let c = compare(&a.analysis, &b.analysis);
-            if c.scales_differ {
-                output.status(format!(
-                    "note: the dots lay {:.1} and {:.1} mm apart on the back: the surface is \
-                     smoothed over a length that follows the spacing, so the changes also hold \
-                     that difference of scale, beyond their σ (scan at the same distance)",
-                    c.spacings_mm[0], c.spacings_mm[1]
-                ));
-            }
-            for (path, lost) in [&before, &after].into_iter().zip(c.lines_lost) {
-                if lost {
-                    output.status(format!(
-                        "note: {}: the symmetry line holds at fewer than half the back's levels, \
-                         so a change may be the line's rather than the back's (capture again)",
-                        path.display()
-                    ));
-                }
+            let names = [before.display().to_string(), after.display().to_string()];
+            for note in comparison_notes(&c, [(&names[0], &a), (&names[1], &b)]) {
+                output.status(format!("note: {note}"));
             }
             let mut text = format!(
                 "changes from {} to {} (beyond {:.2} σ: exceeds the measurement noise):\n",

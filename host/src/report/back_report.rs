@@ -6,7 +6,7 @@
 
 use crate::io::analysis_file::BackReport;
 use anyhow::Result;
-use deltaz_surface::{BackAnalysis, Level, Map, Posture};
+use deltaz_surface::{BackAnalysis, Comparison, Level, Map, Posture};
 use plotters::prelude::*;
 use std::fmt::Write as _;
 
@@ -169,6 +169,37 @@ pub fn report_html(report: &BackReport) -> Result<String> {
     );
     html += ". Written by deltaz.</p>\n</body></html>\n";
     Ok(html)
+}
+
+/// What the reader of a comparison `c` of two analyses must know (each report with the name
+/// it goes by: a path, a session), if anything: that two calibrations measured them, that
+/// their dots lay at other spacings, that a symmetry line holds at fewer than half the levels.
+/// `deltaz analyse compare` and the station say it alike.
+pub fn comparison_notes(c: &Comparison, reports: [(&str, &BackReport); 2]) -> Vec<String> {
+    let mut notes = Vec::new();
+    let [(_, a), (_, b)] = reports;
+    if let (Some(fa), Some(fb)) = (&a.fingerprint, &b.fingerprint) {
+        if fa != fb {
+            notes.push(format!("measured with two calibrations ({fa} and {fb})"));
+        }
+    }
+    if c.scales_differ {
+        notes.push(format!(
+            "the dots lay {:.1} and {:.1} mm apart on the back: the surface is smoothed over a \
+             length that follows the spacing, so the changes also hold that difference of \
+             scale, beyond their σ (scan at the same distance)",
+            c.spacings_mm[0], c.spacings_mm[1]
+        ));
+    }
+    for ((name, _), lost) in reports.into_iter().zip(c.lines_lost) {
+        if lost {
+            notes.push(format!(
+                "{name}: the symmetry line holds at fewer than half the back's levels, so a \
+                 change may be the line's rather than the back's (capture again)"
+            ));
+        }
+    }
+    notes
 }
 
 /// What the reader must know of the levels where the symmetry line was not found

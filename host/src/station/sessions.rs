@@ -16,7 +16,7 @@ use super::live::{dot_states, unix_ms, DotState};
 use super::state::KeptFrame;
 use crate::io::analysis_file::read_report;
 use crate::io::ply::{encode_with, CloudInfo, Encoding};
-use crate::report::back_report::{line_note, report_html};
+use crate::report::back_report::{comparison_notes, line_note, report_html};
 use crate::workflows::back::{analyse_with, Calibration, PointSigma};
 use anyhow::{bail, Context, Result};
 use deltaz_surface::{compare, Options};
@@ -373,7 +373,8 @@ pub fn session_dir(data: &Path, subject: &str, name: &str) -> Result<PathBuf> {
 }
 
 /// The follow-up of two sessions of `subject`, as `deltaz analyse compare` gives it: the
-/// change of each measure and profile with its σ and whether it exceeds the noise.
+/// change of each measure and profile with its σ and whether it exceeds the noise, and the
+/// notes its reader must know.
 pub fn compare_sessions(
     data: &Path,
     subject: &str,
@@ -387,6 +388,7 @@ pub fn compare_sessions(
     json["before"] = serde_json::json!(before);
     json["after"] = serde_json::json!(after);
     json["calibrations"] = serde_json::json!([a.fingerprint, b.fingerprint]);
+    json["notes"] = serde_json::json!(comparison_notes(&c, [(before, &a), (after, &b)]));
     Ok(json)
 }
 

@@ -236,6 +236,18 @@ fn analyse_back_writes_its_report_and_compares() {
     let spacing = |k: usize| spacings[k].as_f64().unwrap();
     assert!((spacing(0) - 20.0).abs() < 1.0 && (spacing(1) - 15.0).abs() < 1.0);
     assert!(stderr.contains("difference of scale"), "{stderr}");
+    // The nearer scan as if another calibration had measured it: the comparison says that too.
+    let mut other: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("n/analysis.json")).unwrap()).unwrap();
+    other["fingerprint"] = serde_json::json!("00000000000000cd");
+    std::fs::write(d.join("other.json"), other.to_string()).unwrap();
+    let compared = deltaz_in(d, &["analyse", "compare", "a/analysis.json", "other.json"]);
+    let stderr = String::from_utf8_lossy(&compared.stderr).into_owned();
+    assert!(
+        stderr.contains("measured with two calibrations (00000000000000ab and 00000000000000cd)")
+            && stderr.contains("difference of scale"),
+        "{stderr}"
+    );
     // A back with another deformity: its rotation changed beyond the noise.
     write_cloud(
         &d.join("h0.ply"),

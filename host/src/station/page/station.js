@@ -186,13 +186,6 @@ $('subject').addEventListener('change', () => {
   if (subject) loadSessions(subject).catch((error) => setText('capture-message', error.message, false));
 });
 
-// The sessions whose symmetry line holds at fewer than half the back's levels, if any.
-function lost(c) {
-  const which = [c.before, c.after].filter((_, k) => c.lines_lost[k]);
-  return which.length ? `; the symmetry line of ${which.join(' and ')} holds at fewer than half `
-    + 'the levels, so a change may be the line\'s rather than the back\'s (capture again)' : '';
-}
-
 $('compare-form').addEventListener('submit', async (e) => {
   e.preventDefault();
   const subject = $('sessions-subject').textContent;
@@ -209,9 +202,7 @@ $('compare-form').addEventListener('submit', async (e) => {
     const beyond = c.levels.filter((l) => l.rotation_deg.exceeds_noise).length;
     setText('compare-message', `${c.before} → ${c.after}: surface rotation changed beyond the noise `
       + `(${fixed(c.threshold, 2)} σ) at ${beyond} of ${c.levels.length} levels`
-      + (c.scales_differ ? `; the dots lay ${fixed(c.spacings_mm[0], 1)} and ${fixed(c.spacings_mm[1], 1)} mm `
-        + 'apart: the changes also hold that difference of scale (scan at the same distance)' : '')
-      + lost(c), true);
+      + c.notes.map((note) => `; ${note}`).join(''), true);
   } catch (error) {
     setText('compare-message', `no comparison: ${error.message}`, false);
   }
