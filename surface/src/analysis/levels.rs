@@ -471,10 +471,11 @@ struct Link {
 /// The path through each level's coarse candidates (x, misfit, _) of least
 /// Σ ln(misfit) + Σ ((x_k − x_j) / (v_k − v_j) / LEAN)² over the levels it keeps (j the kept
 /// level before k), a level left out costing [`SKIP`] more than its best candidate or the
-/// levels' median best, the less of the two (dynamic programming), with the rival at each level: of the least paths through each candidate (the
-/// two passes' min-marginals), the least at a local minimum over the level's candidates more
-/// than `apart` from the path's, if it is within [`AMBIGUOUS`] of the path (a second mirror
-/// axis the chain cannot tell from the first). `None` where a level is left out.
+/// levels' median best, the less of the two (dynamic programming), with the rival at each
+/// level: of the least paths through each candidate (the two passes' min-marginals), the least
+/// at a local minimum over the level's candidates more than `apart` from the path's, if it is
+/// within [`AMBIGUOUS`] of the path (a second mirror axis the chain cannot tell from the
+/// first). `None` where a level is left out.
 fn chain(levels: &[(f64, &[Candidate])], apart: f64) -> Vec<Option<Link>> {
     let ahead = Pass::run(levels.iter().copied());
     let behind = Pass::run(levels.iter().rev().copied());
