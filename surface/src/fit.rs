@@ -398,11 +398,12 @@ impl Fit {
         )
     }
 
-    /// The samples whose residual is wild: its normalised value beyond [`WILD`] times the
-    /// normalised residuals' robust spread (1.4826 × their median magnitude), and its
-    /// neighbours' within `radius` under [`ALONE`] of it in RMS (detail of the back the surface
-    /// does not follow leaves large residuals side by side; a wild point stands alone).
-    pub fn wild(&self, radius: f64) -> Vec<usize> {
+    /// The samples whose residual is wild, each with where it lies, (a, v), and the residual
+    /// (mm): its normalised value beyond [`WILD`] times the normalised residuals' robust spread
+    /// (1.4826 × their median magnitude), and its neighbours' within `radius` under [`ALONE`]
+    /// of it in RMS (detail of the back the surface does not follow leaves large residuals side
+    /// by side; a wild point stands alone).
+    pub fn wild(&self, radius: f64) -> Vec<(usize, [f64; 2], f64)> {
         let z: Vec<f64> = self.rows.iter().map(|r| r.r.abs() * r.w.sqrt()).collect();
         let spread = 1.4826 * median(z.clone());
         // The RMS of the normalised residuals within `radius` of residual i, but its own.
@@ -419,7 +420,7 @@ impl Fit {
         };
         (0..z.len())
             .filter(|&i| z[i] > WILD * spread && near(i) < ALONE * z[i])
-            .map(|i| self.rows[i].sample)
+            .map(|i| (self.rows[i].sample, self.rows[i].at, self.rows[i].r))
             .collect()
     }
 

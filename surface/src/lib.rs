@@ -28,7 +28,7 @@ mod spline;
 mod support;
 pub mod symmetry;
 
-pub use analysis::{analyse, Axes, BackAnalysis, Level, Map, Options, Posture, Sway};
+pub use analysis::{analyse, Axes, BackAnalysis, Level, Map, Options, Posture, Sway, WildPoint};
 pub use compare::{compare, Change, Comparison};
 pub use input::{thin, CommonShare, Frame, ScanPoint};
 

@@ -114,7 +114,7 @@ pub fn report_html(report: &BackReport) -> Result<String> {
     let figures = [
         (
             "Topography: the depth of the back, contour lines every 5 mm, the symmetry line in \
-             black",
+             black, points left out of the surface fit as wild (if any) as crosses",
             topography,
         ),
         (
@@ -132,7 +132,7 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         (
             "Asymmetry: the depth difference to the surface mirrored about the symmetry line \
              (positive: this side nearer the camera than its mirror), contour lines every 2 mm",
-            map_svg(&a.asymmetry, "difference (mm)", None, 2.0, true)?,
+            map_svg(&a.asymmetry, "difference (mm)", None, &[], 2.0, true)?,
         ),
     ];
     for (caption, svg) in figures {
@@ -249,8 +249,16 @@ fn ambiguity_note(levels: &[Level]) -> String {
 /// every 5 mm, the symmetry line) and the surface rotation along the symmetry line with its ±σ
 /// band.
 pub fn surface_figures(a: &BackAnalysis) -> Result<(String, String)> {
+    let wild: Vec<[f64; 2]> = a.wild.iter().map(|w| w.at).collect();
     Ok((
-        map_svg(&a.topography, "depth (mm)", Some(&a.levels), 5.0, false)?,
+        map_svg(
+            &a.topography,
+            "depth (mm)",
+            Some(&a.levels),
+            &wild,
+            5.0,
+            false,
+        )?,
         profile_svg("surface rotation (°)", &a.levels, |l| {
             (l.rotation_deg, l.rotation_sigma_deg)
         })?,
@@ -367,11 +375,13 @@ fn contours(map: &Map, step: f64) -> Vec<[(f64, f64); 2]> {
 }
 
 /// A map of `values` over (across, level) with contour lines every `step`, the symmetry line
-/// of `levels` when given; `diverging`: blue–white–red about 0, else a sequential scale.
+/// of `levels` when given and a cross at each of `marks`; `diverging`: blue–white–red about 0,
+/// else a sequential scale.
 fn map_svg(
     map: &Map,
     what: &str,
     levels: Option<&[Level]>,
+    marks: &[[f64; 2]],
     step: f64,
     diverging: bool,
 ) -> Result<String> {
@@ -466,6 +476,13 @@ fn map_svg(
                 ))
                 .map_err(plot_error)?;
         }
+        chart
+            .draw_series(
+                marks
+                    .iter()
+                    .map(|&[a, v]| Cross::new((a, v), 6, BLACK.stroke_width(2))),
+            )
+            .map_err(plot_error)?;
         let mut bar_chart = ChartBuilder::on(&bar)
             .margin_top(10)
             .margin_bottom(46)

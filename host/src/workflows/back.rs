@@ -376,15 +376,19 @@ pub fn analyse_with(
         let listed: Vec<String> = analysis
             .wild
             .iter()
-            .map(|&[frame, point]| {
-                let p = frames[frame].points[point].position;
-                format!("frame {frame} at ({:.1}, {:.1}, {:.1})", p.x, p.y, p.z)
+            .map(|w| {
+                let p = frames[w.frame].points[w.point].position;
+                format!(
+                    "frame {} at ({:.1}, {:.1}, {:.1}) {:+.1} mm off",
+                    w.frame, p.x, p.y, p.z, w.residual_mm
+                )
             })
             .collect();
         notes.push(format!(
             "{} points left out of the surface fit as wild (each off the surface by over 5 times \
              the residuals' spread where its neighbours' were not: a dot misidentified, a \
-             highlight, a ragged edge), in the camera system (mm): {}",
+             highlight; crosses on the topography), in the camera system (mm; off: in depth, \
+             + nearer the camera): {}",
             listed.len(),
             listed.join(", ")
         ));

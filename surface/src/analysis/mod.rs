@@ -165,6 +165,20 @@ pub struct Map {
     pub sigmas: Vec<Option<f64>>,
 }
 
+/// A point left out of the surface fit as wild ([`BackAnalysis::wild`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WildPoint {
+    /// Its frame.
+    pub frame: usize,
+    /// Its index in the frame.
+    pub point: usize,
+    /// Where it lies, (a, v) in [`Axes`] (registered onto the first frame).
+    pub at: [f64; 2],
+    /// How far it lay off the surface fitted with it, in depth (mm; positive: nearer the
+    /// camera).
+    pub residual_mm: f64,
+}
+
 /// A frame's sway relative to the first: the subject's rotation (about the first frame's
 /// centre of points) and translation, in [`Axes`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -198,12 +212,11 @@ pub struct BackAnalysis {
     /// a lattice's 0.05; at most [`SCATTERED`]).
     #[serde(default)]
     pub irregularity: f64,
-    /// The points left out of the surface fit as wild (frame, index in it): each lay off the
-    /// surface fitted with it by more than 5 times the residuals' robust spread, where its
-    /// neighbours' did not (a dot misidentified, a centroid pulled by a highlight, a scan's
-    /// ragged edge).
+    /// The points left out of the surface fit as wild: each lay off the surface fitted with it
+    /// by more than 5 times the residuals' robust spread, where its neighbours' did not (a dot
+    /// misidentified, a centroid pulled by a highlight), in frame and point order.
     #[serde(default)]
-    pub wild: Vec<[usize; 2]>,
+    pub wild: Vec<WildPoint>,
     /// The analysis frame.
     pub axes: Axes,
     /// Half-width of the symmetry window.
@@ -324,11 +337,11 @@ const MAX_COEFFICIENTS: usize = 1600;
 /// out of it, and it is made again, until none is; they stay in the mesh, which says where the
 /// back was measured.
 pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, SurfaceError> {
-    let mut wild = Vec::new();
+    let mut wild: Vec<WildPoint> = Vec::new();
     loop {
         let (mut analysis, found) = measure(frames, options, &wild)?;
         if found.is_empty() {
-            wild.sort_unstable();
+            wild.sort_by_key(|w| (w.frame, w.point));
             analysis.wild = wild;
             return Ok(analysis);
         }
@@ -336,13 +349,13 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     }
 }
 
-/// One analysis of `frames` without the points `wild` (frame, index) in its fit, with the
-/// points it finds wild among the rest.
+/// One analysis of `frames` without the points `wild` in its fit, with the points it finds
+/// wild among the rest.
 fn measure(
     frames: &[Frame],
     options: &Options,
-    wild: &[[usize; 2]],
-) -> Result<(BackAnalysis, Vec<[usize; 2]>), SurfaceError> {
+    wild: &[WildPoint],
+) -> Result<(BackAnalysis, Vec<WildPoint>), SurfaceError> {
     same_calibration(frames)?;
     for (k, f) in frames.iter().enumerate() {
         f.validate(k)?;
@@ -384,7 +397,7 @@ fn measure(
         .iter()
         .enumerate()
         .flat_map(|(k, b)| b.kept.iter().map(move |&i| [k, i]))
-        .filter(|o| !wild.contains(o))
+        .filter(|&[k, i]| !wild.iter().any(|w| w.frame == k && w.point == i))
         .collect();
     let samples: Vec<Sample> = origin
         .iter()
@@ -435,8 +448,16 @@ fn measure(
     let wild = surface
         .wild(WILD_RADIUS * spacing)
         .into_iter()
-        .map(|i| origin[i])
-        .filter(|&[k, i]| !rims[k].contains(&i))
+        .map(|(sample, at, residual_mm)| {
+            let [frame, point] = origin[sample];
+            WildPoint {
+                frame,
+                point,
+                at,
+                residual_mm,
+            }
+        })
+        .filter(|w| !rims[w.frame].contains(&w.point))
         .collect();
     let measured = Measured {
         fit: &surface,

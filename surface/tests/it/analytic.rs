@@ -457,8 +457,9 @@ fn a_lone_level_is_left_out() {
 
 /// Wild points: three points of a scan moved along the line of sight (6, −10 and 14 mm, as a
 /// misidentified dot or a centroid pulled by a highlight moves them) are found and left out of
-/// the fit, exactly those, and the symmetry line and rotation are the scan's without the three
-/// within a twentieth of their σ; the clean scan has none.
+/// the fit, exactly those, each placed and off the surface by most of its move, and the
+/// symmetry line and rotation are the scan's without the three within a twentieth of their σ;
+/// the clean scan has none.
 #[test]
 fn wild_points_are_left_out_of_the_fit() {
     for seed in 0..3 {
@@ -472,10 +473,25 @@ fn wild_points_are_left_out_of_the_fit() {
             .filter(|i| !wild.contains(i))
             .collect();
         let without = clean.only(&others);
+        // Standing, the analysis axes are the camera's x and y.
+        let at = wild.map(|i| [0, 1].map(|k| clean.points[i].position[k]));
         let [a, b, c] =
             [clean, moved, without].map(|f| analyse(&[f], &Options::standing()).unwrap());
         assert!(a.wild.is_empty(), "seed {seed}: {:?}", a.wild);
-        assert_eq!(b.wild, wild.map(|i| [0, i]), "seed {seed}");
+        let found: Vec<[usize; 2]> = b.wild.iter().map(|w| [w.frame, w.point]).collect();
+        assert_eq!(found, wild.map(|i| [0, i]), "seed {seed}");
+        // Each where it lies, off the surface by most of its move (the surface follows a
+        // point a little).
+        for ((w, q), by) in b.wild.iter().zip(at).zip([6.0, -10.0, 14.0]) {
+            assert!(
+                (w.at[0] - q[0]).abs() < 1.0 && (w.at[1] - q[1]).abs() < 1.0,
+                "seed {seed}: {w:?}"
+            );
+            assert!(
+                w.residual_mm / by > 0.5 && w.residual_mm / by < 1.0,
+                "seed {seed}: {w:?}, moved {by} mm"
+            );
+        }
         assert_eq!(b.levels.len(), c.levels.len(), "seed {seed}");
         for (l, m) in b.levels.iter().zip(&c.levels) {
             let dx = (l.symmetry_x - m.symmetry_x) / m.symmetry_x_sigma;
