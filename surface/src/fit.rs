@@ -14,7 +14,7 @@
 //! var = Σ w_i y_i² + (Σ w_i y_i u_i)ᵀ Σ_c (Σ w_i y_i u_i), y_i = j_iᵀ N⁻¹ g: the sandwich,
 //! which the penalty keeps below N⁻¹.
 
-use crate::mesh::median;
+use crate::median;
 use crate::spline::{Grid, Stencil, D};
 use crate::SurfaceError;
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};

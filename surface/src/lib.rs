@@ -32,6 +32,12 @@ pub use analysis::{analyse, Axes, BackAnalysis, Level, Map, Options, Posture, Sw
 pub use compare::{compare, Change, Comparison};
 pub use input::{thin, CommonShare, Frame, ScanPoint};
 
+/// The median of `values` (the upper one of an even count; 0 without any).
+pub(crate) fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied().unwrap_or(0.0)
+}
+
 /// Why a cloud could not be analysed.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SurfaceError {

@@ -3,6 +3,7 @@
 //! of a dot or a few not measured is spanned ([`Mesh::gaps`]). Points without their rays are
 //! meshed by the Delaunay triangulation of what the camera sees.
 
+use crate::median;
 use nalgebra::Vector3;
 use std::collections::{BTreeSet, HashMap};
 
@@ -271,12 +272,6 @@ impl Mesh {
             .flat_map(|(edge, _)| edge)
             .collect()
     }
-}
-
-/// The median of `values` (0 without any).
-pub(crate) fn median(mut values: Vec<f64>) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values.get(values.len() / 2).copied().unwrap_or(0.0)
 }
 
 /// The lengths of triangle `t`'s edges, shortest first.

@@ -6,12 +6,15 @@ use crate::fit::Sample;
 use crate::input::Frame;
 use crate::SurfaceError;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use std::collections::BTreeSet;
 
-/// A frame's back: its points in the analysis axes and the triangles of its largest piece.
+/// A frame's back: its points in the analysis axes, those of its largest piece, the piece's
+/// surface (its triangles and its gaps spanned) and the points on the surface's rim.
 pub(super) struct Back {
     pub(super) positions: Vec<Vector3<f64>>,
     pub(super) kept: Vec<usize>,
-    pub(super) triangles: Vec<[usize; 3]>,
+    pub(super) surface: Vec<[usize; 3]>,
+    pub(super) rim: BTreeSet<usize>,
     pub(super) spacing: f64,
     /// How irregularly its points lie ([`crate::mesh::Mesh::irregularity`]).
     pub(super) irregularity: f64,

@@ -3,7 +3,7 @@
 
 use super::{BackAnalysis, Posture, MIN_WIDTH};
 use crate::fit::Fit;
-use crate::mesh::median;
+use crate::median;
 use crate::scoliometer::resting_line;
 use crate::spline::D;
 use crate::support::Support;

@@ -337,25 +337,6 @@ const MAX_COEFFICIENTS: usize = 1600;
 /// out of it, and it is made again, until none is; they stay in the mesh, which says where the
 /// back was measured.
 pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, SurfaceError> {
-    let mut wild: Vec<WildPoint> = Vec::new();
-    loop {
-        let (mut analysis, found) = measure(frames, options, &wild)?;
-        if found.is_empty() {
-            wild.sort_by_key(|w| (w.frame, w.point));
-            analysis.wild = wild;
-            return Ok(analysis);
-        }
-        wild.extend(found);
-    }
-}
-
-/// One analysis of `frames` without the points `wild` in its fit, with the points it finds
-/// wild among the rest.
-fn measure(
-    frames: &[Frame],
-    options: &Options,
-    wild: &[WildPoint],
-) -> Result<(BackAnalysis, Vec<WildPoint>), SurfaceError> {
     same_calibration(frames)?;
     for (k, f) in frames.iter().enumerate() {
         f.validate(k)?;
@@ -378,21 +359,48 @@ fn measure(
         .collect();
     let axes = axes(options, &first)?;
     let rot = axes.matrix();
-    let rot_d = DMatrix::from_fn(3, 3, |r, c| rot[(r, c)]);
     let backs: Vec<Back> = frames
         .iter()
         .zip(found)
-        .map(|(f, (kept, triangles, spacing, irregularity))| Back {
-            positions: f.points.iter().map(|p| rot * p.position).collect(),
-            kept,
-            triangles,
-            spacing,
-            irregularity,
+        .map(|(f, (kept, triangles, spacing, irregularity))| {
+            let gaps = Mesh::gaps(&triangles);
+            let surface = [triangles, gaps].concat();
+            Back {
+                positions: f.points.iter().map(|p| rot * p.position).collect(),
+                kept,
+                rim: Mesh::rim(&surface),
+                surface,
+                spacing,
+                irregularity,
+            }
         })
         .collect();
     for (k, b) in backs.iter().enumerate() {
         check_shape(b, k)?;
     }
+    let mut wild: Vec<WildPoint> = Vec::new();
+    loop {
+        let (mut analysis, found) = measure(frames, &backs, axes, options, &wild)?;
+        if found.is_empty() {
+            wild.sort_by_key(|w| (w.frame, w.point));
+            analysis.wild = wild;
+            return Ok(analysis);
+        }
+        wild.extend(found);
+    }
+}
+
+/// One analysis of the `backs` found in `frames`, in `axes`, without the points `wild` in its
+/// fit, with the points it finds wild among the rest.
+fn measure(
+    frames: &[Frame],
+    backs: &[Back],
+    axes: Axes,
+    options: &Options,
+    wild: &[WildPoint],
+) -> Result<(BackAnalysis, Vec<WildPoint>), SurfaceError> {
+    let rot = axes.matrix();
+    let rot_d = DMatrix::from_fn(3, 3, |r, c| rot[(r, c)]);
     let origin: Vec<[usize; 2]> = backs
         .iter()
         .enumerate()
@@ -428,23 +436,17 @@ fn measure(
         lambda,
         frames[0].common.covariance(),
     )?;
-    // Each back's surface: its triangles and its gaps spanned.
-    let spanned: Vec<Vec<[usize; 3]>> = backs
-        .iter()
-        .map(|b| [b.triangles.clone(), Mesh::gaps(&b.triangles)].concat())
-        .collect();
     let mut support = Support::new(lo, hi, step / 4.0);
     for (k, b) in backs.iter().enumerate() {
         let pose = surface.poses[k];
         let moved = |i: usize| surface.centre + pose.r * (b.positions[i] - surface.centre) + pose.t;
-        for t in &spanned[k] {
+        for t in &b.surface {
             support.fill(t.map(moved));
         }
     }
     // Wild points within the surface: along its rim the surface turns away from its fit (on a
     // real back, each point of a flank found wild once the last was left out), and a point
     // there has neighbours on one side only.
-    let rims: Vec<_> = spanned.iter().map(|t| Mesh::rim(t)).collect();
     let wild = surface
         .wild(WILD_RADIUS * spacing)
         .into_iter()
@@ -457,7 +459,7 @@ fn measure(
                 residual_mm,
             }
         })
-        .filter(|w| !rims[w.frame].contains(&w.point))
+        .filter(|w| !backs[w.frame].rim.contains(&w.point))
         .collect();
     let measured = Measured {
         fit: &surface,
