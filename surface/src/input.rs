@@ -1,6 +1,7 @@
 //! What the analysis reads: each frame's points with their covariance, and the calibration's
 //! share common to all of them.
 
+use crate::analysis::MIN_POINTS;
 use crate::mesh::Mesh;
 use crate::SurfaceError;
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -133,8 +134,9 @@ impl Frame {
         }
     }
 
-    /// Checks the frame's numbers: finite points, symmetric non-negative covariances, a
-    /// common share of the right size; `index` names the frame in the error.
+    /// Checks the frame's numbers: finite points in front of the camera, symmetric
+    /// non-negative covariances, a common share of the right size, rays used once, and a span
+    /// in mm (not metres); `index` names the frame in the error.
     pub fn validate(&self, index: usize) -> Result<(), SurfaceError> {
         let bad = |point: usize, problem: &str| SurfaceError::BadPoint {
             frame: index,
@@ -192,6 +194,25 @@ impl Frame {
                     &format!("its ray {:?} is point {first}'s too", p.ray),
                 ));
             }
+        }
+        // A back spans hundreds of mm; one in metres, read as mm, spans a few.
+        let (lo, hi) = self.points.iter().fold(
+            (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            ),
+            |(lo, hi), p| (lo.inf(&p.position), hi.sup(&p.position)),
+        );
+        let span = hi - lo;
+        if self.points.len() >= MIN_POINTS && span.max() < 10.0 {
+            return Err(SurfaceError::NoBack {
+                frame: index,
+                problem: format!(
+                    "its points span {:.3} × {:.3} × {:.3} mm: are they in metres? The analysis \
+                     reads mm",
+                    span.x, span.y, span.z
+                ),
+            });
         }
         Ok(())
     }

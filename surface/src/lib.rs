@@ -28,7 +28,9 @@ mod spline;
 mod support;
 pub mod symmetry;
 
-pub use analysis::{analyse, Axes, BackAnalysis, Level, Map, Options, Posture, Sway, WildPoint};
+pub use analysis::{
+    analyse, Axes, BackAnalysis, Level, Map, Options, PlaneLeftOut, Posture, Sway, WildPoint,
+};
 pub use compare::{compare, Change, Comparison};
 pub use input::{thin, CommonShare, Frame, ScanPoint};
 
@@ -84,7 +86,7 @@ pub enum SurfaceError {
         /// Why not.
         problem: String,
     },
-    /// The cloud is a plane, not a back.
+    /// Every surface in the frame is a plane: no back.
     Plane {
         /// The frame.
         frame: usize,
@@ -155,9 +157,11 @@ impl std::fmt::Display for SurfaceError {
             } => {
                 write!(
                     f,
-                    "frame {frame} is a plane, not a back: the largest smooth piece of its mesh \
-                     ({piece} of its {points} points) lies within {rms_mm:.2} mm RMS of its best \
-                     plane (a back departs by more than {} mm)",
+                    "frame {frame} is a plane, not a back: every smooth piece of its mesh of {} \
+                     points or more is one, and the largest ({piece} of its {points} points) lies \
+                     within {rms_mm:.2} mm RMS of its best plane (a back departs by more than {} \
+                     mm)",
+                    analysis::MIN_POINTS,
                     analysis::PLANE_RMS_MM
                 )?;
                 if 2 * piece < *points {

@@ -12,8 +12,12 @@ use std::collections::{BTreeSet, HashMap};
 pub struct Mesh {
     /// The triangles.
     pub triangles: Vec<[usize; 3]>,
-    /// The median length of the lattice's edges (mm): the dot spacing on the surface.
+    /// The median length of [`Mesh::edges`] (mm): the dot spacing on the surface.
     pub spacing: f64,
+    /// The edges whose lengths give the spacing: the lattice's, or each Delaunay triangle's
+    /// two shorter ones (a lattice's triangles are half cells: their two shorter edges are its
+    /// edges).
+    pub edges: Vec<[usize; 2]>,
     /// The points the triangles index.
     pub points: Vec<Vector3<f64>>,
 }
@@ -41,12 +45,16 @@ impl Mesh {
         let node: HashMap<[i32; 2], usize> =
             rays.iter().enumerate().map(|(i, r)| (*r, i)).collect();
         let at = |i: i32, j: i32| node.get(&[i, j]).copied();
-        let mut edges: Vec<f64> = Vec::new();
-        for (k, &[i, j]) in rays.iter().enumerate() {
-            for n in [at(i + 1, j), at(i, j + 1)].into_iter().flatten() {
-                edges.push((points[n] - points[k]).norm());
-            }
-        }
+        let edges: Vec<[usize; 2]> = rays
+            .iter()
+            .enumerate()
+            .flat_map(|(k, &[i, j])| {
+                [at(i + 1, j), at(i, j + 1)]
+                    .into_iter()
+                    .flatten()
+                    .map(move |n| [k, n])
+            })
+            .collect();
         // Every cell with a measured corner: a cell missing its first corner still has one
         // triangle.
         let cells: BTreeSet<[i32; 2]> = rays
@@ -71,7 +79,7 @@ impl Mesh {
                 _ => {}
             }
         }
-        Self::kept(points, candidates, median(edges))
+        Self::kept(points, candidates, edges)
     }
 
     /// Points without their rays (a cloud from another scanner) make the Delaunay triangles of
@@ -92,20 +100,21 @@ impl Mesh {
             .chunks_exact(3)
             .map(|t| [t[0], t[1], t[2]])
             .collect();
-        // A lattice's triangles are half cells: their two shorter edges are its edges.
         let edges = candidates
             .iter()
-            .flat_map(|t| {
-                let [a, b, _] = sides(points, t);
-                [a, b]
+            .flat_map(|&[a, b, c]| {
+                let mut e = [[a, b], [b, c], [c, a]];
+                e.sort_by(|p, q| length(points, p).total_cmp(&length(points, q)));
+                [e[0], e[1]]
             })
             .collect();
-        Self::kept(points, candidates, median(edges))
+        Self::kept(points, candidates, edges)
     }
 
-    /// The `candidates` without those with an edge beyond [`JUMP`] × `spacing` or seen more
-    /// obliquely than [`OBLIQUE`] from the camera (at the origin).
-    fn kept(points: &[Vector3<f64>], candidates: Vec<[usize; 3]>, spacing: f64) -> Self {
+    /// The `candidates` without those with an edge beyond [`JUMP`] × the spacing (the median of
+    /// `edges`) or seen more obliquely than [`OBLIQUE`] from the camera (at the origin).
+    fn kept(points: &[Vector3<f64>], candidates: Vec<[usize; 3]>, edges: Vec<[usize; 2]>) -> Self {
+        let spacing = median(edges.iter().map(|e| length(points, e)).collect());
         let facing = |t: &[usize; 3]| {
             let [a, b, c] = t.map(|k| points[k]);
             let normal = (b - a).cross(&(c - a));
@@ -119,17 +128,18 @@ impl Mesh {
         Self {
             triangles,
             spacing,
+            edges,
             points: points.to_vec(),
         }
     }
 
-    /// How irregularly the points lie: the RMS spread of each meshed point's distance to its
-    /// nearest neighbour along the triangles, over their mean. On the back model: a lattice,
+    /// How irregularly the points of `triangles` lie: the RMS spread of each point's distance
+    /// to its nearest neighbour along them, over their mean. On the back model: a lattice,
     /// 0.05; a grid whose points stray uniformly by up to 0.15 of its spacing, 0.13; by up to
     /// 0.3, 0.21; by up to 0.5, 0.40; points scattered at random, 0.55.
-    pub fn irregularity(&self) -> f64 {
+    pub fn irregularity(&self, triangles: &[[usize; 3]]) -> f64 {
         let mut nearest = vec![f64::INFINITY; self.points.len()];
-        for t in &self.triangles {
+        for t in triangles {
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
                 let d = (self.points[a] - self.points[b]).norm();
@@ -148,10 +158,10 @@ impl Mesh {
         }
     }
 
-    /// The points of the largest smooth piece (by points), sorted, and its triangles: the
-    /// triangles connected across shared edges where the surface folds by less than
-    /// [`CREASE`] (an arm touching the trunk meets it at a fold).
-    pub fn largest_piece(&self) -> (Vec<usize>, Vec<[usize; 3]>) {
+    /// The smooth pieces of the mesh, largest first (by points; of equal ones, that of the
+    /// first triangle first): its triangles connected across shared edges where the surface folds
+    /// by less than [`CREASE`] (an arm touching the trunk meets it at a fold, a floor a wall).
+    pub fn pieces(&self) -> Vec<Piece> {
         let t = &self.triangles;
         let mut parent: Vec<usize> = (0..t.len()).collect();
         fn root(parent: &mut [usize], mut i: usize) -> usize {
@@ -186,21 +196,41 @@ impl Mesh {
         for k in 0..t.len() {
             members.entry(root(&mut parent, k)).or_default().push(k);
         }
-        let vertices = |tris: &[usize]| {
-            let mut v: Vec<usize> = tris.iter().flat_map(|&k| t[k]).collect();
-            v.sort_unstable();
-            v.dedup();
-            v
-        };
-        let Some(best) = members
-            .values()
-            .max_by_key(|tris| (vertices(tris).len(), std::cmp::Reverse(tris[0])))
-        else {
-            return (vec![], vec![]);
-        };
-        let kept = vertices(best);
-        (kept, best.iter().map(|&k| t[k]).collect())
+        let mut pieces: Vec<(usize, Piece)> = members
+            .into_values()
+            .map(|tris| {
+                let mut points: Vec<usize> = tris.iter().flat_map(|&k| t[k]).collect();
+                points.sort_unstable();
+                points.dedup();
+                let triangles = tris.iter().map(|&k| t[k]).collect();
+                (tris[0], Piece { points, triangles })
+            })
+            .collect();
+        pieces.sort_by_key(|(first, p)| (std::cmp::Reverse(p.points.len()), *first));
+        pieces.into_iter().map(|(_, p)| p).collect()
     }
+
+    /// The dot spacing over `points` (sorted indices, as a [`Piece`]'s): the median length of
+    /// the [`Mesh::edges`] between them.
+    pub fn spacing_over(&self, points: &[usize]) -> f64 {
+        let within = |k: &usize| points.binary_search(k).is_ok();
+        let lengths = self
+            .edges
+            .iter()
+            .filter(|e| e.iter().all(within))
+            .map(|e| length(&self.points, e))
+            .collect();
+        median(lengths)
+    }
+}
+
+/// A smooth connected piece of a mesh ([`Mesh::pieces`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Piece {
+    /// Its points (indices into the mesh's), sorted.
+    pub points: Vec<usize>,
+    /// Its triangles.
+    pub triangles: Vec<[usize; 3]>,
 }
 
 impl Mesh {
@@ -272,6 +302,11 @@ impl Mesh {
             .flat_map(|(edge, _)| edge)
             .collect()
     }
+}
+
+/// The length of edge `e`.
+fn length(points: &[Vector3<f64>], e: &[usize; 2]) -> f64 {
+    (points[e[0]] - points[e[1]]).norm()
 }
 
 /// The lengths of triangle `t`'s edges, shortest first.

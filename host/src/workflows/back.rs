@@ -339,6 +339,12 @@ pub fn analyse_with(
         mut notes,
         fingerprint,
     } = frames(paths, sigma)?;
+    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    let mut names = names.join(", ");
+    // Before thinning: a cloud in metres thinned is a point or two, its scale lost.
+    for (k, f) in frames.iter().enumerate() {
+        f.validate(k).map_err(|e| anyhow::anyhow!("{names}: {e}"))?;
+    }
     let dense = || {
         let spacing = frames.first()?.mesh().spacing;
         (spacing < DENSE_MM).then(|| {
@@ -358,8 +364,6 @@ pub fn analyse_with(
              camera's x-y plane, the point nearest its centre"
         ));
     }
-    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
-    let mut names = names.join(", ");
     if let Some(s) = thinned {
         names += &format!(" (thinned to {s} mm)");
     }
@@ -391,6 +395,15 @@ pub fn analyse_with(
              + nearer the camera): {}",
             listed.len(),
             listed.join(", ")
+        ));
+    }
+    for p in &analysis.planes_left_out {
+        let [x, y, z] = p.centre;
+        notes.push(format!(
+            "frame {}: a plane larger than the back left out (a wall or the floor in view): {} \
+             points about ({x:.0}, {y:.0}, {z:.0}) in the camera system, {:.0} mm beyond the \
+             back; the back is the largest surface that is not a plane",
+            p.frame, p.points, p.beyond_mm
         ));
     }
     let fingerprint = match sigma {

@@ -335,6 +335,24 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         );
         assert!(!d.join("x").exists(), "{clouds:?}: nothing written");
     }
+    // A cloud in metres, dense enough to be thinned: named before thinning leaves a point.
+    let metres: Vec<Vector3<f64>> = noisy(&scattered_dots(&model, 5.0, 2), 2)
+        .iter()
+        .map(|p| p / 1000.0)
+        .collect();
+    std::fs::write(d.join("metres.ply"), plain(&metres)).unwrap();
+    let args = ["analyse", "back", "--cloud", "metres.ply", "--sigma", "0.4"];
+    let out = deltaz_in(d, &[&args[..], &["--out", "x"]].concat());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("metres.ply: frame 0: no back in view: its points span"),
+        "{err}"
+    );
+    assert!(
+        err.contains("are they in metres?") && !d.join("x").exists(),
+        "{err}"
+    );
 }
 
 /// Where the back's left side is out of view beside the spine (the measured surface ends
@@ -603,4 +621,80 @@ fn analyse_back_reads_a_cloud_from_elsewhere() {
         );
         assert!(!d.join("x").exists(), "{cloud}: nothing written");
     }
+}
+
+/// A wall 400 mm behind the subject and the floor 1 m below the camera, seen around the back
+/// (each a larger surface than it, without the points the back hides): left out as planes,
+/// named in the notes and analysis.json, and the back analysed from its own points. (Its
+/// points are meshed by their directions, so its outline's triangles, and with them the
+/// spacing read, differ from the back's alone: the lattice's case, identical to the back
+/// alone, is the surface crate's.)
+#[test]
+fn analyse_back_leaves_out_a_wall_and_the_floor() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BackModel::standing(Deformity::thoracic());
+    let back = noisy(&model.sample(&Lattice::beside_camera(20.0)), 12);
+    let depth = back.iter().map(|p| p.z).sum::<f64>() / back.len() as f64;
+    let seen = |p: &Vector3<f64>| p.xy() / -p.z;
+    let hidden = |p: &Vector3<f64>| {
+        back.iter()
+            .any(|b| (seen(b) - seen(p)).norm() < 20.0 / -depth)
+    };
+    let grid = |u: f64, v: f64, at: &dyn Fn(f64, f64) -> Vector3<f64>| {
+        let steps =
+            |half: f64| (-(half / 20.0) as i32..=(half / 20.0) as i32).map(|k| 20.0 * f64::from(k));
+        steps(u)
+            .flat_map(|a| steps(v).map(move |b| (a, b)))
+            .map(|(a, b)| at(a, b))
+            .filter(|p| !hidden(p))
+            .collect::<Vec<_>>()
+    };
+    let wall = grid(700.0, 900.0, &|x, y| Vector3::new(x, y, depth - 400.0));
+    let floor = grid(600.0, 500.0, &|x, z| Vector3::new(x, -1000.0, depth + z));
+    let scene = [back.clone(), wall.clone(), floor.clone()].concat();
+    std::fs::write(d.join("back.ply"), plain(&back)).unwrap();
+    std::fs::write(d.join("scene.ply"), plain(&scene)).unwrap();
+    let run = |cloud: &str| {
+        let args = [
+            "analyse", "back", "--cloud", cloud, "--sigma", "0.4", "--json",
+        ];
+        let out = format!("{cloud}.out");
+        json(&deltaz_in(d, &[&args[..], &["--out", &out]].concat()))
+    };
+    let (alone, analysed) = (run("back.ply"), run("scene.ply"));
+    // Each plane as one piece, less a few points at its rim (the floor's far part, seen at a
+    // grazing angle, is too oblique to mesh): the wall 400 mm beyond the back, the floor below.
+    let planes = analysed["planes_left_out"].as_array().unwrap();
+    let [wall_out, floor_out] = &planes[..] else {
+        panic!("{planes:?}")
+    };
+    let count = |p: &serde_json::Value| p["points"].as_u64().unwrap();
+    assert!(
+        100 * count(wall_out) > 99 * wall.len() as u64,
+        "{wall_out} of {}",
+        wall.len()
+    );
+    assert!(
+        10 * count(floor_out) > 6 * floor.len() as u64,
+        "{floor_out} of {}",
+        floor.len()
+    );
+    let beyond = wall_out["beyond_mm"].as_f64().unwrap();
+    assert!((beyond - 400.0).abs() < 10.0, "{wall_out}");
+    let below = floor_out["centre"][1].as_f64().unwrap();
+    assert!((below + 1000.0).abs() < 1.0, "{floor_out}");
+    let notes = analysed["notes"].to_string();
+    let said = format!(
+        "a plane larger than the back left out (a wall or the floor in view): {} points",
+        count(wall_out)
+    );
+    assert!(
+        notes.contains(&said) && notes.matches("a plane larger").count() == 2,
+        "{notes}"
+    );
+    assert!(alone["planes_left_out"].as_array().unwrap().is_empty());
+    // The back's points, every one and no other; its line where the model's is.
+    assert_eq!(analysed["points"], alone["points"]);
+    line_holds(&analysed, &model);
 }

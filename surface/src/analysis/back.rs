@@ -1,9 +1,10 @@
-//! Finding a frame's back (the largest piece of its mesh, checked for a back's shape)
-//! and the analysis axes.
+//! Finding a frame's back (the largest piece of its mesh that is not a plane, checked for a
+//! back's shape) and the analysis axes.
 
-use super::{Axes, Options, Posture, MIN_POINTS, PLANE_RMS_MM, SCATTERED};
+use super::{Axes, Options, PlaneLeftOut, Posture, MIN_POINTS, PLANE_RMS_MM, SCATTERED};
 use crate::fit::Sample;
 use crate::input::Frame;
+use crate::mesh::Piece;
 use crate::SurfaceError;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use std::collections::BTreeSet;
@@ -20,13 +21,20 @@ pub(super) struct Back {
     pub(super) irregularity: f64,
 }
 
-/// A frame's back piece: its points, its triangles, the dot spacing and how irregularly the
-/// points lie.
-type Piece = (Vec<usize>, Vec<[usize; 3]>, f64, f64);
+/// What [`find_back`] finds in a frame: its back's points and triangles, their dot spacing,
+/// how irregularly they lie, and the planes larger than the back left out.
+pub(super) struct Found {
+    pub(super) kept: Vec<usize>,
+    pub(super) triangles: Vec<[usize; 3]>,
+    pub(super) spacing: f64,
+    pub(super) irregularity: f64,
+    pub(super) planes: Vec<PlaneLeftOut>,
+}
 
-/// The back in a frame: the largest smooth piece of its mesh, of points not scattered at
-/// random ([`SCATTERED`]).
-pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceError> {
+/// The back in a frame: the largest smooth piece of its mesh that is not a plane (a wall or
+/// the floor in view is left out, and listed), of points not scattered at random
+/// ([`SCATTERED`]).
+pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Found, SurfaceError> {
     if frame.points.len() < MIN_POINTS {
         return Err(SurfaceError::TooFewPoints {
             frame: index,
@@ -35,24 +43,70 @@ pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Piece, SurfaceErr
         });
     }
     let mesh = frame.mesh();
-    let (kept, triangles) = mesh.largest_piece();
-    if kept.len() < MIN_POINTS {
+    let pieces = mesh.pieces();
+    let largest = pieces.first().map_or(0, |p| p.points.len());
+    if largest < MIN_POINTS {
         return Err(SurfaceError::NoBack {
             frame: index,
             problem: format!(
-                "its largest connected surface has {} points (needs {MIN_POINTS})",
-                kept.len()
+                "its largest connected surface has {largest} points (needs {MIN_POINTS})"
             ),
         });
     }
-    let irregularity = mesh.irregularity();
+    let candidates: Vec<Piece> = pieces
+        .into_iter()
+        .take_while(|p| p.points.len() >= MIN_POINTS)
+        .collect();
+    let positions = |p: &Piece| p.points.iter().map(|&i| mesh.points[i]).collect::<Vec<_>>();
+    let flatness = |p: &Piece| principal(positions(p).into_iter()).1;
+    let Some(at) = candidates.iter().position(|p| flatness(p) >= PLANE_RMS_MM) else {
+        return Err(SurfaceError::Plane {
+            frame: index,
+            rms_mm: flatness(&candidates[0]),
+            piece: largest,
+            points: frame.points.len(),
+        });
+    };
+    let back = &candidates[at];
+    // The spacing and irregularity are those of the frame without the planes left out (of
+    // the whole frame where there are none, as the analysis was made with them).
+    let planar: BTreeSet<usize> = candidates[..at]
+        .iter()
+        .flat_map(|p| p.points.iter().copied())
+        .collect();
+    let rest: Vec<usize> = (0..mesh.points.len())
+        .filter(|i| !planar.contains(i))
+        .collect();
+    let rest_triangles: Vec<[usize; 3]> = mesh
+        .triangles
+        .iter()
+        .filter(|t| t.iter().all(|i| !planar.contains(i)))
+        .copied()
+        .collect();
+    let irregularity = mesh.irregularity(&rest_triangles);
     if irregularity > SCATTERED {
         return Err(SurfaceError::Scattered {
             frame: index,
             irregularity,
         });
     }
-    Ok((kept, triangles, mesh.spacing, irregularity))
+    let centre = |p: &Piece| positions(p).iter().sum::<Vector3<f64>>() / p.points.len() as f64;
+    let planes = candidates[..at]
+        .iter()
+        .map(|p| PlaneLeftOut {
+            frame: index,
+            points: p.points.len(),
+            centre: centre(p).into(),
+            beyond_mm: centre(p).norm() - centre(back).norm(),
+        })
+        .collect();
+    Ok(Found {
+        kept: back.points.clone(),
+        triangles: back.triangles.clone(),
+        spacing: mesh.spacing_over(&rest),
+        irregularity,
+        planes,
+    })
 }
 
 /// The principal directions of points (largest spread first) and their RMS distance from
@@ -124,11 +178,9 @@ pub(super) fn bounds(samples: &[Sample]) -> ([f64; 2], [f64; 2]) {
     )
 }
 
-/// A back is wider and longer than a few dots (and than 10 mm: a cloud in metres is not a
-/// back in mm) and far from flat.
+/// A back is wider and longer than a few dots.
 pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
     let points = b.kept.iter().map(|&i| b.positions[i]);
-    let (_, rms) = principal(points.clone());
     let extent = |k: usize| {
         let (lo, hi) = points
             .clone()
@@ -139,15 +191,6 @@ pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
         hi - lo
     };
     let (width, length) = (extent(0), extent(1));
-    if width.max(length) < 10.0 {
-        return Err(SurfaceError::NoBack {
-            frame,
-            problem: format!(
-                "its surface spans {width:.3} × {length:.3} mm: are its points in metres? The \
-                 analysis reads mm"
-            ),
-        });
-    }
     if width < 8.0 * b.spacing || length < 8.0 * b.spacing {
         return Err(SurfaceError::NoBack {
             frame,
@@ -155,14 +198,6 @@ pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
                 "its surface spans {width:.0} × {length:.0} mm, under 8 dot spacings ({:.1} mm) either way",
                 b.spacing
             ),
-        });
-    }
-    if rms < PLANE_RMS_MM {
-        return Err(SurfaceError::Plane {
-            frame,
-            rms_mm: rms,
-            piece: b.kept.len(),
-            points: b.positions.len(),
         });
     }
     Ok(())

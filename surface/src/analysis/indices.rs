@@ -144,6 +144,7 @@ impl Measured<'_> {
             spacing_mm: spacing,
             irregularity: 0.0,
             wild: Vec::new(),
+            planes_left_out: Vec::new(),
             axes: Axes {
                 across: [1.0, 0.0, 0.0],
                 axis: [0.0, 1.0, 0.0],

@@ -179,6 +179,20 @@ pub struct WildPoint {
     pub residual_mm: f64,
 }
 
+/// A plane larger than the back, left out of a frame ([`BackAnalysis::planes_left_out`]): a
+/// wall or the floor in view.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlaneLeftOut {
+    /// Its frame.
+    pub frame: usize,
+    /// Its points.
+    pub points: usize,
+    /// Their centre, in the frame's camera system (mm).
+    pub centre: [f64; 3],
+    /// How much further from the camera its centre lies than the back's (mm).
+    pub beyond_mm: f64,
+}
+
 /// A frame's sway relative to the first: the subject's rotation (about the first frame's
 /// centre of points) and translation, in [`Axes`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -217,6 +231,10 @@ pub struct BackAnalysis {
     /// misidentified, a centroid pulled by a highlight), in frame and point order.
     #[serde(default)]
     pub wild: Vec<WildPoint>,
+    /// The planes larger than the back in view (a wall, the floor), left out: the back is the
+    /// largest smooth surface that is not a plane ([`PLANE_RMS_MM`]).
+    #[serde(default)]
+    pub planes_left_out: Vec<PlaneLeftOut>,
     /// The analysis frame.
     pub axes: Axes,
     /// Half-width of the symmetry window.
@@ -353,25 +371,26 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
         .map(|(k, f)| find_back(f, k))
         .collect::<Result<Vec<_>, _>>()?;
     let first: Vec<Vector3<f64>> = found[0]
-        .0
+        .kept
         .iter()
         .map(|&i| frames[0].points[i].position)
         .collect();
     let axes = axes(options, &first)?;
     let rot = axes.matrix();
+    let planes_left_out: Vec<PlaneLeftOut> = found.iter().flat_map(|f| f.planes.clone()).collect();
     let backs: Vec<Back> = frames
         .iter()
         .zip(found)
-        .map(|(f, (kept, triangles, spacing, irregularity))| {
-            let gaps = Mesh::gaps(&triangles);
-            let surface = [triangles, gaps].concat();
+        .map(|(f, found)| {
+            let gaps = Mesh::gaps(&found.triangles);
+            let surface = [found.triangles, gaps].concat();
             Back {
                 positions: f.points.iter().map(|p| rot * p.position).collect(),
-                kept,
+                kept: found.kept,
                 rim: Mesh::rim(&surface),
                 surface,
-                spacing,
-                irregularity,
+                spacing: found.spacing,
+                irregularity: found.irregularity,
             }
         })
         .collect();
@@ -384,6 +403,7 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
         if found.is_empty() {
             wild.sort_by_key(|w| (w.frame, w.point));
             analysis.wild = wild;
+            analysis.planes_left_out = planes_left_out;
             return Ok(analysis);
         }
         wild.extend(found);

@@ -504,3 +504,41 @@ fn wild_points_are_left_out_of_the_fit() {
         }
     }
 }
+
+/// A wall 400 mm behind the back, seen around it (the lattice's rays beyond the back, a larger
+/// surface than it): left out as a plane, listed with its size and depth, and the back is
+/// analysed as if alone.
+#[test]
+fn a_wall_behind_is_left_out() {
+    let alone = scan(1.0, 4);
+    assert_eq!(alone.points.len(), 21 * 33);
+    let mut with_wall = alone.clone();
+    let behind = alone.points.iter().map(|p| p.position.z).sum::<f64>() / 693.0 - 400.0;
+    for j in -30_i32..=30 {
+        for i in -20_i32..=20 {
+            if i.abs() > 10 || j.abs() > 16 {
+                with_wall.points.push(ScanPoint {
+                    position: Vector3::new(15.0 * f64::from(i), 15.0 * f64::from(j), behind),
+                    covariance: alone.points[0].covariance,
+                    ray: Some([i, j]),
+                });
+            }
+        }
+    }
+    let [a, b] = [alone, with_wall].map(|f| analyse(&[f], &Options::standing()).unwrap());
+    assert!(a.planes_left_out.is_empty());
+    let [wall] = &b.planes_left_out[..] else {
+        panic!("{:?}", b.planes_left_out)
+    };
+    assert_eq!((wall.frame, wall.points), (0, 41 * 61 - 21 * 33));
+    assert!((wall.beyond_mm - 400.0).abs() < 5.0, "{wall:?}");
+    assert_eq!((a.points, a.spacing_mm), (b.points, b.spacing_mm));
+    assert_eq!(a.levels.len(), b.levels.len());
+    for (p, q) in a.levels.iter().zip(&b.levels) {
+        assert!(
+            (p.symmetry_x - q.symmetry_x).abs() < 1e-9 * p.symmetry_x_sigma,
+            "{p:?} {q:?}"
+        );
+        assert!((p.rotation_deg - q.rotation_deg).abs() < 1e-9 * p.rotation_sigma_deg);
+    }
+}

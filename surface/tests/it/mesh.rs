@@ -66,9 +66,11 @@ fn irregularity_grows_as_points_leave_a_grid() {
                 Vector3::new(at(i), at(j), -1500.0)
             })
             .collect();
-        Mesh::over_directions(&points).irregularity()
+        let mesh = Mesh::over_directions(&points);
+        mesh.irregularity(&mesh.triangles)
     };
-    assert!(lattice(&[]).irregularity() < 1e-9);
+    let flat = lattice(&[]);
+    assert!(flat.irregularity(&flat.triangles) < 1e-9);
     let [small, large] = [0.15, 0.5].map(scattered);
     assert!(
         (0.08..0.18).contains(&small),
@@ -77,16 +79,21 @@ fn irregularity_grows_as_points_leave_a_grid() {
     assert!((0.3..0.5).contains(&large), "jittered by 0.5: {large:.3}");
 }
 
-/// Points scattered at random are refused by the analysis, naming how irregularly they lie.
+/// Points scattered at random over a back's curve are refused by the analysis, naming how
+/// irregularly they lie.
 #[test]
 fn points_scattered_at_random_are_refused() {
     let mut rng = ChaCha8Rng::seed_from_u64(6);
     let field = Uniform::new(-200.0, 200.0).unwrap();
+    // On a cylinder, bent as a back is (a plane is refused as one first).
     let points = (0..1600)
-        .map(|_| ScanPoint {
-            position: Vector3::new(field.sample(&mut rng), field.sample(&mut rng), -1500.0),
-            covariance: Matrix3::identity() * 0.16,
-            ray: None,
+        .map(|_| {
+            let [x, y] = [field.sample(&mut rng), field.sample(&mut rng)];
+            ScanPoint {
+                position: Vector3::new(x, y, -1500.0 - x * x / 400.0),
+                covariance: Matrix3::identity() * 0.16,
+                ray: None,
+            }
         })
         .collect();
     let frame = Frame {
