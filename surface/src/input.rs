@@ -1,9 +1,8 @@
 //! What the analysis reads: each frame's points with their covariance, and the calibration's
 //! share common to all of them.
 
-use crate::analysis::MIN_POINTS;
 use crate::mesh::Mesh;
-use crate::SurfaceError;
+use crate::{SurfaceError, MIN_POINTS};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use std::collections::HashMap;
 

@@ -34,6 +34,9 @@ pub use analysis::{
 pub use compare::{compare, Change, Comparison};
 pub use input::{thin, CommonShare, Frame, ScanPoint};
 
+/// Fewer points than this in a frame are not a back.
+pub const MIN_POINTS: usize = 40;
+
 /// The median of `values` (the upper one of an even count; 0 without any).
 pub(crate) fn median(mut values: Vec<f64>) -> f64 {
     values.sort_by(f64::total_cmp);
@@ -161,7 +164,7 @@ impl std::fmt::Display for SurfaceError {
                      points or more is one, and the largest ({piece} of its {points} points) lies \
                      within {rms_mm:.2} mm RMS of its best plane (a back departs by more than {} \
                      mm)",
-                    analysis::MIN_POINTS,
+                    MIN_POINTS,
                     analysis::PLANE_RMS_MM
                 )?;
                 if 2 * piece < *points {

@@ -1,11 +1,11 @@
 //! Finding a frame's back (the largest piece of its mesh that is not a plane, checked for a
 //! back's shape) and the analysis axes.
 
-use super::{Axes, Options, PlaneLeftOut, Posture, MIN_POINTS, PLANE_RMS_MM, SCATTERED};
+use super::{Axes, Options, PlaneLeftOut, Posture, PLANE_RMS_MM, SCATTERED};
 use crate::fit::Sample;
 use crate::input::Frame;
 use crate::mesh::Piece;
-use crate::SurfaceError;
+use crate::{SurfaceError, MIN_POINTS};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use std::collections::BTreeSet;
 

@@ -334,8 +334,6 @@ impl BackAnalysis {
     }
 }
 
-/// Fewer points than this in a frame are not a back.
-pub const MIN_POINTS: usize = 40;
 /// A back departs from its best plane by tens of mm; a cloud within this RMS is a plane.
 pub const PLANE_RMS_MM: f64 = 5.0;
 /// Levels where the trunk is narrower than this share of its median width are left out.
