@@ -197,6 +197,8 @@ pub enum Part {
     Back,
     /// An arm.
     Arm,
+    /// The wall behind the subject ([`BackModel::backdrop`]).
+    Backdrop,
 }
 
 /// A surface point with its outward unit normal.
@@ -250,6 +252,8 @@ pub struct BackModel {
     pub distance: f64,
     /// The sway of this frame.
     pub pose: Pose,
+    /// A wall behind the subject, square to the camera's axis this far from it (mm), or none.
+    pub backdrop: Option<f64>,
 }
 
 /// Cuts the section at this fraction of its half-width, where it turns away (about 67° steep).
@@ -276,6 +280,7 @@ impl BackModel {
             posture: Posture::Standing,
             distance: 1500.0,
             pose: Pose::default(),
+            backdrop: None,
         }
     }
 
@@ -437,8 +442,26 @@ impl BackModel {
         vec![(-a, n), (a, n)]
     }
 
-    /// Where the ray `origin + t dir` (t > 0) first meets the body.
+    /// Where the ray `origin + t dir` (t > 0) first meets the body, or past it the backdrop.
     pub fn hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
+        let backdrop = self.backdrop.and_then(|distance| {
+            let t = (-distance - origin.z) / dir.z;
+            (t > 0.0).then(|| Hit {
+                point: origin + dir * t,
+                normal: Vector3::z(),
+                part: Part::Backdrop,
+            })
+        });
+        let beyond = |h: &Hit| (h.point - origin).dot(dir);
+        match (self.hit_body(origin, dir), backdrop) {
+            (Some(body), Some(wall)) if beyond(&wall) < beyond(&body) => Some(wall),
+            (None, wall) => wall,
+            (body, _) => body,
+        }
+    }
+
+    /// Where the ray `origin + t dir` (t > 0) first meets the body.
+    fn hit_body(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
         let (o, d) = (self.to_trunk(*origin), {
             let (r, _, _) = self.placement();
             r.inverse() * dir.normalize()

@@ -296,6 +296,7 @@ pub fn write_back_frames(
             let part = match d.part {
                 Part::Back => "back",
                 Part::Arm => "arm",
+                Part::Backdrop => "backdrop",
             };
             let (x, (c, r)) = (d.point, d.pixel);
             writeln!(

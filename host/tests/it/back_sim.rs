@@ -251,6 +251,8 @@ pub struct IndexErrors {
     pub lines_lost: usize,
     /// The points left out of the fit as wild, all draws.
     pub wild: usize,
+    /// The planes larger than the back left out (a wall in view), all draws.
+    pub planes: usize,
 }
 
 /// The signed value of largest magnitude.
@@ -271,6 +273,7 @@ impl IndexErrors {
         self.left_out += a.levels_left_out.len();
         self.lines_lost += usize::from(a.line_mostly_lost());
         self.wild += a.wild.len();
+        self.planes += a.planes_left_out.len();
         let mut truth = Vec::new();
         for l in &a.levels {
             let (x, n) = model
