@@ -177,6 +177,13 @@ impl Frame {
         }
         let mut seen = HashMap::new();
         for (i, p) in self.points.iter().enumerate() {
+            if p.position == Vector3::zeros() {
+                return Err(bad(
+                    i,
+                    "it is (0, 0, 0), the camera's centre: some scanners write that for a point \
+                     not measured; leave such points out",
+                ));
+            }
             if p.position.z >= 0.0 {
                 return Err(bad(
                     i,

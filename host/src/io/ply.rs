@@ -279,8 +279,14 @@ pub fn read_cloud(path: &Path) -> Result<Cloud> {
                     .collect()
             }
         };
-        if values.len() != properties.len() || values.iter().any(|v| !v.is_finite()) {
-            return Err(problem("wrong count of values or a value not finite"));
+        if values.len() != properties.len() {
+            return Err(problem("wrong count of values"));
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(problem(
+                "a value not finite (some scanners write NaN for a point not measured: leave \
+                 such points out of the file)",
+            ));
         }
         let whole = |v: f64, max: f64| (v >= 0.0 && v <= max && v.fract() == 0.0).then_some(v);
         let ray = match ray {

@@ -353,6 +353,29 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         err.contains("are they in metres?") && !d.join("x").exists(),
         "{err}"
     );
+    // Points a scanner did not measure, written as NaN or as the camera's centre: named.
+    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), 3);
+    for (name, mark, expect) in [
+        (
+            "nan.ply",
+            Vector3::repeat(f64::NAN),
+            "nan.ply: vertex 7: a value not finite (some scanners write NaN for a point not measured",
+        ),
+        (
+            "zero.ply",
+            Vector3::zeros(),
+            "zero.ply: frame 0, point 7: it is (0, 0, 0), the camera's centre",
+        ),
+    ] {
+        let mut marked = points.clone();
+        marked[7] = mark;
+        std::fs::write(d.join(name), plain(&marked)).unwrap();
+        let args = ["analyse", "back", "--cloud", name, "--sigma", "0.4"];
+        let out = deltaz_in(d, &[&args[..], &["--out", "x"]].concat());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expect), "{err}");
+        assert!(!d.join("x").exists(), "{name}: nothing written");
+    }
 }
 
 /// Where the back's left side is out of view beside the spine (the measured surface ends
