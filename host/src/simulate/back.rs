@@ -446,7 +446,7 @@ impl BackModel {
     pub fn hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
         let backdrop = self.backdrop.and_then(|distance| {
             let t = (-distance - origin.z) / dir.z;
-            (t > 0.0).then(|| Hit {
+            (t > 0.0 && t.is_finite()).then(|| Hit {
                 point: origin + dir * t,
                 normal: Vector3::z(),
                 part: Part::Backdrop,

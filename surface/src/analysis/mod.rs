@@ -222,8 +222,8 @@ pub struct BackAnalysis {
     pub calibration: Option<u64>,
     /// The dot spacing on the back.
     pub spacing_mm: f64,
-    /// How irregularly the first frame's points lie ([`crate::mesh::Mesh::irregularity`]:
-    /// a lattice's 0.05; at most [`SCATTERED`]).
+    /// How irregularly the first frame's points lie, a plane left out aside
+    /// ([`crate::mesh::Mesh::irregularity`]: a lattice's 0.05; at most [`SCATTERED`]).
     #[serde(default)]
     pub irregularity: f64,
     /// The points left out of the surface fit as wild: each lay off the surface fitted with it
