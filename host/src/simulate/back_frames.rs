@@ -31,6 +31,10 @@ use std::path::Path;
 /// the normal) are not drawn: their footprints smear into their neighbours'.
 pub const MAX_INCIDENCE_DEG: f64 = 75.0;
 
+/// A backdrop stands this far beyond the subject's distance at least (mm): clear of the trunk
+/// and the arms, standing or bent forward.
+const BACKDROP_BEHIND_MM: f64 = 150.0;
+
 /// The subject of a scenario's back frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -55,11 +59,16 @@ pub struct BackSpec {
     pub dot_amplitude: f64,
     /// The sensor noise of the back frames (DN).
     pub noise_sigma: f64,
+    /// A wall behind the subject, square to the camera's axis this far from the camera (mm);
+    /// none if absent. Within the depth range its dots are identified (and the analysis leaves
+    /// it out as a plane); beyond it some are identified to a wrong ray.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backdrop: Option<f64>,
 }
 
 impl BackSpec {
-    /// Checks the deformity's name, the frame counts (at most 100 each), the sway (≥ 0) and
-    /// the depth range (0 < near < distance < far).
+    /// Checks the deformity's name, the frame counts (at most 100 each), the sway (≥ 0), the
+    /// depth range (0 < near < distance < far) and the backdrop (behind the subject).
     pub fn validate(&self) -> Result<()> {
         let names: Vec<&str> = Deformity::all().iter().map(|d| d.name).collect();
         anyhow::ensure!(
@@ -85,6 +94,14 @@ impl BackSpec {
             self.dot_amplitude > 0.0 && self.noise_sigma >= 0.0,
             "back: dot_amplitude must be positive and noise_sigma not negative"
         );
+        if let Some(wall) = self.backdrop {
+            anyhow::ensure!(
+                wall > self.distance + BACKDROP_BEHIND_MM,
+                "back.backdrop {wall} mm must stand behind the subject: more than \
+                 {BACKDROP_BEHIND_MM} mm beyond its distance ({} mm)",
+                self.distance
+            );
+        }
         Ok(())
     }
 
@@ -121,11 +138,12 @@ impl BackSpec {
         };
         let standing = BackModel {
             distance: self.distance,
+            backdrop: self.backdrop,
             ..BackModel::standing(deformity.clone())
         };
         let bent = BackModel {
-            distance: self.distance,
-            ..BackModel::forward_bent(deformity)
+            posture: Posture::ForwardBent,
+            ..standing.clone()
         };
         let mut models = Vec::new();
         for (name, base, count) in [

@@ -209,3 +209,44 @@ fn simulate_back_scenario_cli() {
     assert_eq!(json["deformity"], "thoracic");
     assert_eq!(json["frames"].as_array().unwrap().len(), 6);
 }
+
+/// A scenario's `back.backdrop`: a wall behind the subject in every frame, its dots drawn
+/// where the projector's rays miss the body and the camera sees past it; a wall that would
+/// cut the subject is refused.
+#[test]
+fn a_scenario_puts_a_wall_behind_the_back() {
+    let text = include_str!("../../scenarios/back.toml");
+    let with_wall = |at: &str| {
+        Scenario::from_toml(&text.replace(
+            "noise_sigma = 4.0",
+            &format!("noise_sigma = 4.0\nbackdrop = {at}"),
+        ))
+    };
+    let err = with_wall("1600.0").unwrap_err().to_string();
+    assert!(
+        err.contains("back.backdrop 1600 mm must stand behind the subject"),
+        "{err}"
+    );
+    let s = with_wall("1700.0").unwrap();
+    let models = s.back.as_ref().unwrap().models(3);
+    assert!(models.iter().all(|(_, m)| m.backdrop == Some(1700.0)));
+    let (label, model) = &models[0];
+    let frame = render_back(&true_rig(&s), label, model, &skin(&s), 4);
+    let wall: Vec<_> = frame
+        .dots
+        .iter()
+        .filter(|d| d.part == Part::Backdrop)
+        .collect();
+    assert!(wall.len() > 300, "{} dots on the wall", wall.len());
+    assert!(wall.iter().all(|d| (d.point.z + 1700.0).abs() < 1e-6));
+    // None where the body hides the wall from the camera: the line of sight to each misses
+    // the body (the model without its wall).
+    let body = BackModel {
+        backdrop: None,
+        ..model.clone()
+    };
+    let origin = nalgebra::Vector3::zeros();
+    assert!(wall.iter().all(|d| body.hit(&origin, &d.point).is_none()));
+    let back = frame.dots.iter().filter(|d| d.part == Part::Back).count();
+    assert!(back > 300, "{back} dots on the back");
+}
