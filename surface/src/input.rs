@@ -2,7 +2,7 @@
 //! share common to all of them.
 
 use crate::mesh::Mesh;
-use crate::{SurfaceError, MIN_POINTS};
+use crate::{bounding_box, SurfaceError, MIN_POINTS};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use std::collections::HashMap;
 
@@ -202,13 +202,7 @@ impl Frame {
             }
         }
         // A back spans hundreds of mm; one in metres, read as mm, spans a few.
-        let (lo, hi) = self.points.iter().fold(
-            (
-                Vector3::repeat(f64::INFINITY),
-                Vector3::repeat(f64::NEG_INFINITY),
-            ),
-            |(lo, hi), p| (lo.inf(&p.position), hi.sup(&p.position)),
-        );
+        let (lo, hi) = bounding_box(self.points.iter().map(|p| p.position));
         let span = hi - lo;
         if self.points.len() >= MIN_POINTS && span.max() < 10.0 {
             return Err(SurfaceError::NoBack {

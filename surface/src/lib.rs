@@ -34,8 +34,23 @@ pub use analysis::{
 pub use compare::{compare, Change, Comparison};
 pub use input::{thin, CommonShare, Frame, ScanPoint};
 
+use nalgebra::Vector3;
+
 /// Fewer points than this in a frame are not a back.
 pub const MIN_POINTS: usize = 40;
+
+/// The least and greatest coordinates of `points` (infinite without any).
+pub(crate) fn bounding_box(
+    points: impl IntoIterator<Item = Vector3<f64>>,
+) -> (Vector3<f64>, Vector3<f64>) {
+    points.into_iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), p| (lo.inf(&p), hi.sup(&p)),
+    )
+}
 
 /// The median of `values` (the upper one of an even count; 0 without any).
 pub(crate) fn median(mut values: Vec<f64>) -> f64 {

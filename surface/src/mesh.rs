@@ -311,7 +311,7 @@ fn length(points: &[Vector3<f64>], e: &[usize; 2]) -> f64 {
 
 /// The lengths of triangle `t`'s edges, shortest first.
 fn sides(points: &[Vector3<f64>], t: &[usize; 3]) -> [f64; 3] {
-    let e = |a: usize, b: usize| (points[t[a]] - points[t[b]]).norm();
+    let e = |a: usize, b: usize| length(points, &[t[a], t[b]]);
     let mut s = [e(0, 1), e(1, 2), e(2, 0)];
     s.sort_by(f64::total_cmp);
     s

@@ -2,10 +2,9 @@
 //! back's shape) and the analysis axes.
 
 use super::{Axes, Options, PlaneLeftOut, Posture, PLANE_RMS_MM, SCATTERED};
-use crate::fit::Sample;
 use crate::input::Frame;
 use crate::mesh::Piece;
-use crate::{SurfaceError, MIN_POINTS};
+use crate::{bounding_box, SurfaceError, MIN_POINTS};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use std::collections::BTreeSet;
 
@@ -91,13 +90,17 @@ pub(super) fn find_back(frame: &Frame, index: usize) -> Result<Found, SurfaceErr
         });
     }
     let centre = |p: &Piece| positions(p).iter().sum::<Vector3<f64>>() / p.points.len() as f64;
+    let back_distance = centre(back).norm();
     let planes = candidates[..at]
         .iter()
-        .map(|p| PlaneLeftOut {
-            frame: index,
-            points: p.points.len(),
-            centre: centre(p).into(),
-            beyond_mm: centre(p).norm() - centre(back).norm(),
+        .map(|p| {
+            let c = centre(p);
+            PlaneLeftOut {
+                frame: index,
+                points: p.points.len(),
+                centre: c.into(),
+                beyond_mm: c.norm() - back_distance,
+            }
         })
         .collect();
     Ok(Found {
@@ -162,35 +165,11 @@ pub(super) fn axes(options: &Options, back: &[Vector3<f64>]) -> Result<Axes, Sur
         up: up.into(),
     })
 }
-pub(super) fn bounds(samples: &[Sample]) -> ([f64; 2], [f64; 2]) {
-    let fold = |k: usize, f: fn(f64, f64) -> f64, start: f64| {
-        samples.iter().map(|s| s.p[k]).fold(start, f)
-    };
-    (
-        [
-            fold(0, f64::min, f64::INFINITY),
-            fold(1, f64::min, f64::INFINITY),
-        ],
-        [
-            fold(0, f64::max, f64::NEG_INFINITY),
-            fold(1, f64::max, f64::NEG_INFINITY),
-        ],
-    )
-}
 
 /// A back is wider and longer than a few dots.
 pub(super) fn check_shape(b: &Back, frame: usize) -> Result<(), SurfaceError> {
-    let points = b.kept.iter().map(|&i| b.positions[i]);
-    let extent = |k: usize| {
-        let (lo, hi) = points
-            .clone()
-            .map(|p| p[k])
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
-                (l.min(x), h.max(x))
-            });
-        hi - lo
-    };
-    let (width, length) = (extent(0), extent(1));
+    let (lo, hi) = bounding_box(b.kept.iter().map(|&i| b.positions[i]));
+    let (width, length) = (hi.x - lo.x, hi.y - lo.y);
     if width < 8.0 * b.spacing || length < 8.0 * b.spacing {
         return Err(SurfaceError::NoBack {
             frame,

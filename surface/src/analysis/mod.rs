@@ -30,8 +30,8 @@ use crate::input::{same_calibration, Frame};
 use crate::mesh::Mesh;
 use crate::spline::Grid;
 use crate::support::Support;
-use crate::SurfaceError;
-use back::{axes, bounds, check_shape, find_back, Back};
+use crate::{bounding_box, SurfaceError};
+use back::{axes, check_shape, find_back, Back};
 use levels::Measured;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -435,7 +435,7 @@ fn measure(
         })
         .collect();
     let spacing = backs[0].spacing;
-    let (lo, hi) = bounds(&samples);
+    let (lo, hi) = bounding_box(samples.iter().map(|s| s.p));
     let margin = 2.0 * spacing;
     let (lo, hi) = (
         [lo[0] - margin, lo[1] - margin],
