@@ -3,7 +3,9 @@
 use super::args::OutputArgs;
 use crate::io::analysis_file::read_report;
 use crate::io::atomic::write_all_atomic;
-use crate::report::back_report::{comparison_notes, indices, line_note, plus_minus, report_html};
+use crate::report::back_report::{
+    analysis_note, comparison_notes, indices, plus_minus, report_html,
+};
 use crate::report::console::Output;
 use crate::workflows::back::analyse_clouds;
 use anyhow::Result;
@@ -127,7 +129,7 @@ pub fn exec(what: What) -> Result<()> {
             for note in &report.notes {
                 output.status(format!("note: {note}"));
             }
-            if let Some(note) = line_note(a) {
+            if let Some(note) = analysis_note(a) {
                 output.status(format!("note: {note}"));
             }
             text += &format!("-> {}, {}\n", json_path.display(), html_path.display());

@@ -78,7 +78,7 @@ pub fn report_html(report: &BackReport) -> Result<String> {
         a.fit_chi,
         a.misfit_mm
     );
-    for note in report.notes.iter().cloned().chain(line_note(a)) {
+    for note in report.notes.iter().cloned().chain(analysis_note(a)) {
         let _ = writeln!(html, "<p class=\"note\">{}</p>", escape(&note));
     }
     html += "<h2>Measures</h2>\n<table><tr><th>measure</th><th>value ± σ</th></tr>\n";
@@ -202,10 +202,29 @@ pub fn comparison_notes(c: &Comparison, reports: [(&str, &BackReport); 2]) -> Ve
     notes
 }
 
-/// What the reader must know of the levels where the symmetry line was not found
-/// ([`BackAnalysis::levels_left_out`]), if any: the report, `deltaz analyse back` and the
-/// station say it alike.
-pub fn line_note(a: &BackAnalysis) -> Option<String> {
+/// What the reader must know of the analysis, if anything: a profile that reads as a back
+/// seen upside down ([`BackAnalysis::looks_upside_down`]) and the levels where the symmetry
+/// line was not found ([`BackAnalysis::levels_left_out`]). The report, `deltaz analyse back`
+/// and the station say it alike.
+pub fn analysis_note(a: &BackAnalysis) -> Option<String> {
+    let mut notes = Vec::new();
+    if a.looks_upside_down() {
+        notes.push(format!(
+            "The back's sagittal profile is that of a back seen upside down: its slope is least \
+             at mid height and steepest toward both ends ({:+.1}° from the middle third to the \
+             outer ones, where a back standing reads +7 to +23°). If the cloud's +y points to \
+             the feet (a camera mounted upside down, a scanner writing y down), every profile \
+             here is reversed and the rotation's sign turned: analyse it again with --vertical \
+             0,-1,0.",
+            a.sagittal_mid_excess_deg().unwrap_or(f64::NAN)
+        ));
+    }
+    notes.extend(line_note(a));
+    (!notes.is_empty()).then(|| notes.join(" "))
+}
+
+/// The levels where the symmetry line was not found, if any.
+fn line_note(a: &BackAnalysis) -> Option<String> {
     let left_out = &a.levels_left_out;
     if left_out.is_empty() {
         return None;

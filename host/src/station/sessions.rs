@@ -16,7 +16,7 @@ use super::live::{dot_states, unix_ms, DotState};
 use super::state::KeptFrame;
 use crate::io::analysis_file::read_report;
 use crate::io::ply::{encode_with, CloudInfo, Encoding};
-use crate::report::back_report::{comparison_notes, line_note, report_html};
+use crate::report::back_report::{analysis_note, comparison_notes, report_html};
 use crate::workflows::back::{analyse_with, Calibration, PointSigma};
 use anyhow::{bail, Context, Result};
 use deltaz_surface::{compare, Options};
@@ -138,10 +138,10 @@ pub struct Session {
     pub frames: Vec<SessionFrame>,
     /// The largest surface rotation and its σ (°).
     pub rotation_max_deg: [f64; 2],
-    /// What the report says of the levels where the symmetry line was not found, if any
-    /// ([`line_note`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub line_note: Option<String>,
+    /// What the report says the reader must know of the analysis, if anything
+    /// ([`analysis_note`]).
+    #[serde(default, alias = "line_note", skip_serializing_if = "Option::is_none")]
+    pub analysis_note: Option<String>,
 }
 
 /// What a capture needs besides its frames.
@@ -272,7 +272,7 @@ fn fill(
         posture: posture.to_owned(),
         frames: listed,
         rotation_max_deg: [a.rotation_max_deg, a.rotation_max_deg_sigma],
-        line_note: line_note(a),
+        analysis_note: analysis_note(a),
     };
     Ok(session)
 }

@@ -8,7 +8,7 @@
 use super::live::{unix_ms, Latest};
 use super::state::{KeptFrame, Shared};
 use crate::io::ply::Vertex;
-use crate::report::back_report::{indices, line_note, surface_figures};
+use crate::report::back_report::{analysis_note, indices, surface_figures};
 use crate::workflows::back::{with_calibration, Calibration};
 use anyhow::{bail, Result};
 use deltaz_surface::{analyse, BackAnalysis, Frame, Options};
@@ -79,7 +79,7 @@ fn surface_json(kept: &[KeptFrame], analysis: Result<BackAnalysis>) -> String {
             "points": a.points,
             "levels": a.levels.len(),
             "levels_left_out": a.levels_left_out.len(),
-            "line_note": line_note(&a),
+            "analysis_note": analysis_note(&a),
             "rotation_max_deg": a.rotation_max_deg,
             "rotation_max_deg_sigma": a.rotation_max_deg_sigma,
             "topography_svg": topography,

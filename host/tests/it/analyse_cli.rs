@@ -721,3 +721,61 @@ fn analyse_back_leaves_out_a_wall_and_the_floor() {
     assert_eq!(analysed["points"], alone["points"]);
     line_holds(&analysed, &model);
 }
+
+/// A cloud whose +y points to the feet (the back model's turned 180° about the line of
+/// sight, as a camera mounted upside down sees it): analysed, its report and the command say
+/// its profile is that of a back seen upside down and name --vertical 0,-1,0; told so, the
+/// note is gone and the measures are those of the back upright.
+#[test]
+fn analyse_back_notes_a_back_upside_down() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BackModel::standing(Deformity::thoracic());
+    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), 11);
+    let turned: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| Vector3::new(-p.x, -p.y, p.z))
+        .collect();
+    std::fs::write(d.join("upright.ply"), plain(&points)).unwrap();
+    std::fs::write(d.join("turned.ply"), plain(&turned)).unwrap();
+    let analyse = |cloud: &str, out: &str, vertical: Option<&str>| {
+        let mut args = vec!["analyse", "back", "--cloud", cloud, "--sigma", "0.4"];
+        args.extend(vertical.map(|v| ["--vertical", v]).iter().flatten());
+        args.extend(["--out", out, "--json"]);
+        let out = deltaz_in(d, &args);
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        (json(&out), stderr)
+    };
+    let said = "that of a back seen upside down";
+    let (upright, stderr) = analyse("upright.ply", "u", None);
+    assert!(!stderr.contains(said), "{stderr}");
+    let (_, stderr) = analyse("turned.ply", "t", None);
+    let html = std::fs::read_to_string(d.join("t/report.html")).unwrap();
+    assert!(
+        stderr.contains(said) && stderr.contains("--vertical 0,-1,0") && html.contains(said),
+        "{stderr}"
+    );
+    let (righted, stderr) = analyse("turned.ply", "r", Some("0,-1,0"));
+    assert!(!stderr.contains(said), "{stderr}");
+    let rotations = |a: &serde_json::Value| -> Vec<f64> {
+        a["levels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| l["rotation_deg"].as_f64().unwrap())
+            .collect()
+    };
+    let (u, r) = (rotations(&upright), rotations(&righted));
+    assert!(
+        u.len() > 15 && u.len() == r.len(),
+        "{} and {} levels",
+        u.len(),
+        r.len()
+    );
+    for (u, r) in u.iter().zip(&r) {
+        assert!(
+            (u - r).abs() < 0.01,
+            "rotation {u:.3}° upright, {r:.3}° righted"
+        );
+    }
+}

@@ -22,7 +22,7 @@ fn report(what: &str, e: &IndexErrors) {
     eprintln!(
         "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}° \
          (its error {:.3}°, {:.2}), RMS rotation {:.3}° ({:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2}); \
-         levels left out {}, points left out as wild {} in {} draws",
+         levels left out {}, points left out as wild {} in {} draws; sagittal mid-height excess {}",
         e.symmetry_x.rms(),
         e.symmetry_x.z(),
         e.rotation.rms(),
@@ -39,6 +39,7 @@ fn report(what: &str, e: &IndexErrors) {
         e.left_out,
         e.wild,
         e.largest_rotation.len(),
+        e.mid_excess_range(),
     );
 }
 

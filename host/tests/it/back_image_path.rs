@@ -158,7 +158,7 @@ fn report(what: &str, e: &IndexErrors) {
         format!("{name} {:.3} {unit} ({:.2})", x.rms(), x.z())
     };
     eprintln!(
-        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°; levels left out {}, wild points {}, planes left out {}",
+        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°; levels left out {}, wild points {}, planes left out {}; sagittal mid-height excess {}",
         line("symmetry x", &e.symmetry_x, "mm"),
         line("rotation", &e.rotation, "°"),
         line("skin angle", &e.skin_angle, "°"),
@@ -178,6 +178,7 @@ fn report(what: &str, e: &IndexErrors) {
         e.left_out,
         e.wild,
         e.planes,
+        e.mid_excess_range(),
     );
 }
 

@@ -170,6 +170,7 @@ fn real_backs_against_cobb() {
     against_a_denser_pattern(&scans, &patients);
     mirrored(&scans, &patients);
     turned(&scans, &patients);
+    upside_down(&scans, &patients);
     without_rays(&scans, &patients);
     through_the_command(&scans[0], &patients[0]);
 }
@@ -647,5 +648,45 @@ fn agree_within_sigma(placed: &[Vec<Reading>]) {
                 patient.name
             );
         }
+    }
+}
+
+/// Each back turned upside down (a camera mounted so, or a cloud whose +y points to the feet:
+/// (x, y) → (−x, −y)) is analysed as told, but its sagittal profile says so
+/// ([`BackAnalysis::looks_upside_down`]); told `--vertical 0,-1,0`, it is the back again: the
+/// largest rotation, its sign and σ, and the excess within 0.01 of the back's (the lattice falls
+/// alike: its nodes are symmetric about the camera's axis). Measured: the mid-height excess +7 to +23°
+/// standing, −6 to −22° upside down.
+fn upside_down(scans: &[Patient], original: &[Reading]) {
+    for (scan, reading) in scans.iter().zip(original) {
+        let turned: Vec<Vector3<f64>> = scan
+            .upright
+            .1
+            .iter()
+            .map(|p| Vector3::new(-p.x, -p.y, p.z))
+            .collect();
+        let frame = || thinned(&turned, SPACING, Lattice::default(), SIGMA);
+        let as_told = analyse(&[frame()], &Options::standing()).unwrap();
+        let mut options = Options::standing();
+        options.vertical = Some(-Vector3::y());
+        let righted = analyse(&[frame()], &options).unwrap();
+        let [(a, sa), (b, sb)] =
+            [&reading.upright, &righted].map(|x| (x.rotation_max_deg, x.rotation_max_deg_sigma));
+        eprintln!(
+            "{} upside down: mid-height excess {:+.1}° (standing {:+.1}°, righted {:+.1}°); largest rotation righted {b:+.1} ± {sb:.1}° against {a:+.1} ± {sa:.1}°",
+            scan.name,
+            as_told.sagittal_mid_excess_deg().unwrap(),
+            reading.upright.sagittal_mid_excess_deg().unwrap(),
+            righted.sagittal_mid_excess_deg().unwrap(),
+        );
+        assert!(!reading.upright.looks_upside_down(), "{}", scan.name);
+        assert!(as_told.looks_upside_down(), "{} upside down", scan.name);
+        assert!(!righted.looks_upside_down(), "{} righted", scan.name);
+        let excess = [&reading.upright, &righted].map(|x| x.sagittal_mid_excess_deg().unwrap());
+        assert!(
+            (a - b).abs() < 0.01 && (sa - sb).abs() < 0.01 && (excess[0] - excess[1]).abs() < 0.01,
+            "{} righted",
+            scan.name
+        );
     }
 }

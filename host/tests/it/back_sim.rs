@@ -249,6 +249,11 @@ pub struct IndexErrors {
     pub left_out: usize,
     /// The draws whose line is mostly lost (`BackAnalysis::line_mostly_lost`).
     pub lines_lost: usize,
+    /// The draws whose profile reads as a back seen upside down
+    /// (`BackAnalysis::looks_upside_down`).
+    pub upside_down: usize,
+    /// Each standing draw's sagittal mid-height excess (°).
+    pub mid_excess: Vec<f64>,
     /// The points left out of the fit as wild, all draws.
     pub wild: usize,
     /// The planes larger than the back left out (a wall in view), all draws.
@@ -267,11 +272,28 @@ fn rms(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 impl IndexErrors {
+    /// The range of the standing draws' sagittal mid-height excess, as printed.
+    pub fn mid_excess_range(&self) -> String {
+        let (lo, hi) = self
+            .mid_excess
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        if self.mid_excess.is_empty() {
+            "none (bent forward)".into()
+        } else {
+            format!("{lo:+.1} to {hi:+.1}°")
+        }
+    }
+
     /// Adds an analysis of `model` (the frame 0 model of a scan) to the errors.
     pub fn add(&mut self, model: &BackModel, a: &BackAnalysis) {
         let axes = axes_of(a);
         self.left_out += a.levels_left_out.len();
         self.lines_lost += usize::from(a.line_mostly_lost());
+        self.upside_down += usize::from(a.looks_upside_down());
+        self.mid_excess.extend(a.sagittal_mid_excess_deg());
         self.wild += a.wild.len();
         self.planes += a.planes_left_out.len();
         let mut truth = Vec::new();
@@ -423,9 +445,11 @@ pub fn check_line_and_rotation(what: &str, e: &IndexErrors) {
 }
 
 /// The accuracy bars (rotation ≤ 0.5° RMS, its error/σ within 0.8-1.25; symmetry line
-/// ≤ 2 mm RMS), the line's error/σ left to the caller, and no draw's line mostly lost.
+/// ≤ 2 mm RMS), the line's error/σ left to the caller, no draw's line mostly lost and no
+/// draw read as upside down.
 pub fn check_accuracy(what: &str, e: &IndexErrors) {
     assert_eq!(e.lines_lost, 0, "{what}: lines mostly lost");
+    assert_eq!(e.upside_down, 0, "{what}: read as upside down");
     assert!(
         e.rotation.rms() <= 0.5,
         "{what}: rotation RMS {:.3}°",

@@ -146,7 +146,7 @@ fn the_page_shows_live_points_and_surface_and_captures_in_a_real_browser() {
         // The levels where the symmetry line was not found are stated, only where there are.
         let surface = c.find(Locator::Id("surface")).await.unwrap();
         let left_out = surface.attr("data-left-out").await.unwrap().unwrap();
-        let line = c.find(Locator::Id("surface-line")).await.unwrap();
+        let line = c.find(Locator::Id("surface-note")).await.unwrap();
         let stated = line.is_displayed().await.unwrap()
             && line.text().await.unwrap().contains(&format!("not found at {left_out} of"));
         assert_eq!(stated, left_out != "0", "{left_out} levels left out");

@@ -70,16 +70,16 @@ function showLive(f) {
 // Surface: the station's figures and the measures with their σ.
 function showSurface(s) {
   const message = $('surface-message');
-  const line = $('surface-line');
+  const note = $('surface-note');
   if (s.error) {
-    line.hidden = true;
+    note.hidden = true;
     message.hidden = false;
     message.textContent = `no surface from the latest frames: ${s.error}`;
     return;
   }
   message.hidden = true;
-  line.hidden = !s.line_note;
-  line.textContent = s.line_note || '';
+  note.hidden = !s.analysis_note;
+  note.textContent = s.analysis_note || '';
   $('surface-topography').innerHTML = s.topography_svg;
   $('surface-rotation').innerHTML = s.rotation_svg;
   $('surface').dataset.levels = String(s.levels);
@@ -172,7 +172,7 @@ $('capture-form').addEventListener('submit', async (e) => {
     const [r, sr] = s.rotation_max_deg;
     setText('capture-message', `saved session ${s.name} of ${s.subject}: ${s.frames.length} frames, `
       + `largest surface rotation ${fixed(r, 1)} ± ${fixed(sr, 1)}°`
-      + (s.line_note ? `. ${s.line_note}` : ''), true);
+      + (s.analysis_note ? `. ${s.analysis_note}` : ''), true);
     $('capture').dataset.session = s.name;
     await loadSubjects();
     await loadSessions(subject);
