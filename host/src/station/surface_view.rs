@@ -9,7 +9,7 @@ use super::live::{unix_ms, Latest};
 use super::state::{KeptFrame, Shared};
 use crate::io::ply::Vertex;
 use crate::report::back_report::{analysis_note, indices, surface_figures};
-use crate::workflows::back::{with_calibration, Calibration};
+use crate::workflows::back::{fit_notes, with_calibration, Calibration};
 use anyhow::{bail, Result};
 use deltaz_surface::{analyse, BackAnalysis, Frame, Options};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -44,12 +44,13 @@ pub fn frames_of(
         .collect()
 }
 
-/// The analysis of the last [`LIVE_FRAMES`] frames with points of `kept`.
+/// The analysis of the last [`LIVE_FRAMES`] frames with points of `kept`, with what its
+/// reader must know of the points it set aside ([`fit_notes`]).
 pub fn live_analysis(
     kept: &[KeptFrame],
     calibration: &Calibration,
     centroid_step_px: Option<f64>,
-) -> Result<BackAnalysis> {
+) -> Result<(BackAnalysis, Vec<String>)> {
     let with_points: Vec<KeptFrame> = kept
         .iter()
         .filter(|f| !f.found.points.is_empty())
@@ -60,15 +61,17 @@ pub fn live_analysis(
     }
     let last = &with_points[with_points.len().saturating_sub(LIVE_FRAMES)..];
     let frames = frames_of(last, calibration, centroid_step_px)?;
-    analyse(&frames, &Options::standing()).map_err(|e| anyhow::anyhow!("{e}"))
+    let analysis = analyse(&frames, &Options::standing()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let notes = fit_notes(&analysis, &frames);
+    Ok((analysis, notes))
 }
 
 /// The surface event: the figures and measures, or why there is no surface.
-fn surface_json(kept: &[KeptFrame], analysis: Result<BackAnalysis>) -> String {
+fn surface_json(kept: &[KeptFrame], analysis: Result<(BackAnalysis, Vec<String>)>) -> String {
     let latest = kept.last();
     let read_ms = latest.map(|f| unix_ms(f.read_at));
     let label = latest.map(|f| f.label.clone());
-    let body = analysis.and_then(|a| {
+    let body = analysis.and_then(|(a, notes)| {
         let (topography, rotation) = surface_figures(&a)?;
         let measures: Vec<_> = indices(&a)
             .into_iter()
@@ -80,6 +83,7 @@ fn surface_json(kept: &[KeptFrame], analysis: Result<BackAnalysis>) -> String {
             "levels": a.levels.len(),
             "levels_left_out": a.levels_left_out.len(),
             "analysis_note": analysis_note(&a),
+            "notes": notes,
             "rotation_max_deg": a.rotation_max_deg,
             "rotation_max_deg_sigma": a.rotation_max_deg_sigma,
             "topography_svg": topography,

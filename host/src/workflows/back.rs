@@ -21,7 +21,7 @@ use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::DotObservation;
 use deltaz_calib::system_adjustment::{Frame as ModelFrame, PointShares, SystemModel};
 use deltaz_shared::rig::Method;
-use deltaz_surface::{analyse, CommonShare, Frame, Options, ScanPoint};
+use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -368,6 +368,23 @@ pub fn analyse_with(
         names += &format!(" (thinned to {s} mm)");
     }
     let analysis = analyse(&frames, options).map_err(|e| anyhow::anyhow!("{names}: {e}"))?;
+    notes.extend(fit_notes(&analysis, &frames));
+    let fingerprint = match sigma {
+        PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
+        _ => fingerprint,
+    };
+    Ok(BackReport {
+        notes,
+        ..back_report(paths, sigma, fingerprint, analysis)
+    })
+}
+
+/// What the reader must know of the points the analysis of `frames` set aside or found
+/// wanting: points lying irregularly, points left out of the surface fit as wild (where they
+/// lie), planes larger than the back left out. `deltaz analyse back`, its report and the
+/// station's surface say it alike.
+pub fn fit_notes(analysis: &BackAnalysis, frames: &[Frame]) -> Vec<String> {
+    let mut notes = Vec::new();
     if analysis.irregularity > IRREGULAR {
         notes.push(format!(
             "the points lie irregularly (their nearest neighbours' distances spread by {:.0} % of \
@@ -406,14 +423,7 @@ pub fn analyse_with(
             p.frame, p.points, p.beyond_mm
         ));
     }
-    let fingerprint = match sigma {
-        PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
-        _ => fingerprint,
-    };
-    Ok(BackReport {
-        notes,
-        ..back_report(paths, sigma, fingerprint, analysis)
-    })
+    notes
 }
 
 /// The report of an analysis of the clouds at `paths` (what `analysis.json` holds), with where

@@ -18,7 +18,8 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// The station's fixture: a calibrated system of the paper rig (`system.json`, with its
-/// covariance), rendered frames of a back (`frames/`), of a flat board (`plane/`) and
+/// covariance), rendered frames of a back (`frames/`), of the back before a wall
+/// (`walled/`), of a flat board (`plane/`) and
 /// black frames without dots (`empty/`), all at the rig's 768 × 512 pixels, and the subject's
 /// depth range (near, far) in mm.
 pub struct Fixture {
@@ -85,6 +86,23 @@ pub fn fixture() -> &'static Fixture {
                 .save_png(&dir.join("frames").join(format!("{label}.png")), spec.depth)
                 .unwrap();
         }
+        // The same back 200 mm aside, before a wall 140 mm behind it, within the working depth.
+        std::fs::create_dir_all(dir.join("walled")).unwrap();
+        for k in 0..3u64 {
+            let model = BackModel {
+                backdrop: Some(WALL_MM),
+                ..BackModel::standing(Deformity::thoracic())
+            }
+            .with_pose(Pose {
+                rotation: Vector3::zeros(),
+                translation: Vector3::new(-200.0, 0.0, 0.0),
+            });
+            let label = format!("w{k:02}");
+            render_back(&rig, &label, &model, &spec, 200 + k)
+                .image
+                .save_png(&dir.join("walled").join(format!("{label}.png")), spec.depth)
+                .unwrap();
+        }
         let plane: Vec<Object> = (0..3)
             .map(|k| Object::Plane {
                 depth: 1500.0 + 5.0 * f64::from(k),
@@ -105,6 +123,10 @@ pub fn fixture() -> &'static Fixture {
         }
     })
 }
+
+/// The distance from the camera of the wall behind the back in the fixture's `walled/` frames
+/// (mm): within the subject's depth range.
+const WALL_MM: f64 = 1640.0;
 
 /// A station process, ended when dropped.
 pub struct Station {
@@ -680,4 +702,49 @@ fn the_plane_check_tells_a_sound_calibration_from_a_bent_one() {
         (0.1..0.4).contains(&sigma),
         "the simulated 0.2 px: {facts:#}"
     );
+}
+
+/// The back, standing 200 mm left of the camera's axis, before a wall within the working depth
+/// (beside the back the wall is larger than it): the live surface is the back's, and its notes
+/// name the wall left out in each frame, where it lies and how far beyond the back.
+#[test]
+fn a_wall_behind_the_back_is_named_on_the_surface() {
+    let f = fixture();
+    let dir = tempfile::tempdir().unwrap();
+    let s = station(&f.dir.join("walled"), &dir.path().join("data"), &[]);
+    let status = wait_status(s.addr, 60, "the surface", |st| {
+        st["surface"]["frames"].as_u64() == Some(3)
+    });
+    let surface = &status["surface"];
+    let notes: Vec<&str> = surface["notes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap())
+        .collect();
+    let walls: Vec<&&str> = notes
+        .iter()
+        .filter(|n| n.contains("a plane larger than the back left out"))
+        .collect();
+    assert_eq!(walls.len(), 3, "one a frame: {surface:#}");
+    for wall in walls {
+        // "... points about (x, y, z) in the camera system, D mm beyond the back; ..."
+        let z: f64 = wall
+            .split(", ")
+            .find_map(|p| p.strip_suffix(") in the camera system"))
+            .unwrap()
+            .parse()
+            .unwrap();
+        let beyond: f64 = wall
+            .split(" in the camera system, ")
+            .nth(1)
+            .and_then(|r| r.split(" mm beyond").next())
+            .unwrap()
+            .parse()
+            .unwrap();
+        // The wall stands 140 mm behind the skin, 1,500 mm from the camera.
+        assert!((z + WALL_MM).abs() < 10.0, "{wall}");
+        assert!((120.0..160.0).contains(&beyond), "{wall}");
+    }
+    assert!(surface["levels"].as_u64().unwrap() >= 5, "{surface:#}");
 }

@@ -199,6 +199,14 @@ fn the_page_shows_live_points_and_surface_and_captures_in_a_real_browser() {
             latencies[latencies.len() / 2],
             latencies[latencies.len() - 1]
         );
+        // Before a wall, the page lists it under the surface, left out.
+        let walled = station(&f.dir.join("walled"), &dir.path().join("walled-data"), &[]);
+        c.goto(&format!("http://{}/", walled.addr)).await.unwrap();
+        // Read fresh each time (each surface event replaces the list); WebDriver gives a
+        // hidden element's text as empty, so the text found is displayed.
+        wait_text(&c, "surface-notes", 60, |t| t.contains("a plane larger than the back left out")).await;
+        let png = c.find(Locator::Id("surface")).await.unwrap().screenshot().await.unwrap();
+        std::fs::write(screenshots().join("surface-wall.png"), png).unwrap();
         c.close().await.unwrap();
         check_session(&data.join("s1").join(&sessions[0]), &f.dir.join("system.json"));
     });

@@ -73,6 +73,7 @@ function showSurface(s) {
   const note = $('surface-note');
   if (s.error) {
     note.hidden = true;
+    $('surface-notes').replaceChildren();
     message.hidden = false;
     message.textContent = `no surface from the latest frames: ${s.error}`;
     return;
@@ -84,6 +85,13 @@ function showSurface(s) {
   $('surface-rotation').innerHTML = s.rotation_svg;
   $('surface').dataset.levels = String(s.levels);
   $('surface').dataset.leftOut = String(s.levels_left_out);
+  const notes = $('surface-notes');
+  notes.replaceChildren();
+  for (const n of s.notes) {
+    const li = document.createElement('li');
+    li.textContent = n;
+    notes.appendChild(li);
+  }
   const table = $('surface-measures');
   table.replaceChildren();
   row(table, ['measure', 'value ± σ'], true);
