@@ -62,7 +62,8 @@ pub fn live_analysis(
     let last = &with_points[with_points.len().saturating_sub(LIVE_FRAMES)..];
     let frames = frames_of(last, calibration, centroid_step_px)?;
     let analysis = analyse(&frames, &Options::standing()).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let notes = fit_notes(&analysis, &frames);
+    let names: Vec<String> = last.iter().map(|f| format!("frame {}", f.label)).collect();
+    let notes = fit_notes(&analysis, &frames, &names);
     Ok((analysis, notes))
 }
 

@@ -368,7 +368,8 @@ pub fn analyse_with(
         names += &format!(" (thinned to {s} mm)");
     }
     let analysis = analyse(&frames, options).map_err(|e| anyhow::anyhow!("{names}: {e}"))?;
-    notes.extend(fit_notes(&analysis, &frames));
+    let names: Vec<String> = (0..frames.len()).map(|k| format!("frame {k}")).collect();
+    notes.extend(fit_notes(&analysis, &frames, &names));
     let fingerprint = match sigma {
         PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
         _ => fingerprint,
@@ -379,11 +380,11 @@ pub fn analyse_with(
     })
 }
 
-/// What the reader must know of the points the analysis of `frames` set aside or found
-/// wanting: points lying irregularly, points left out of the surface fit as wild (where they
-/// lie), planes larger than the back left out. `deltaz analyse back`, its report and the
-/// station's surface say it alike.
-pub fn fit_notes(analysis: &BackAnalysis, frames: &[Frame]) -> Vec<String> {
+/// What the reader must know of the points the analysis of `frames` (each called by its
+/// `names`) set aside or found wanting: points lying irregularly, points left out of the
+/// surface fit as wild (where they lie), planes larger than the back left out. `deltaz
+/// analyse back`, its report and the station's surface say it alike.
+pub fn fit_notes(analysis: &BackAnalysis, frames: &[Frame], names: &[String]) -> Vec<String> {
     let mut notes = Vec::new();
     if analysis.irregularity > IRREGULAR {
         notes.push(format!(
@@ -400,8 +401,8 @@ pub fn fit_notes(analysis: &BackAnalysis, frames: &[Frame]) -> Vec<String> {
             .map(|w| {
                 let p = frames[w.frame].points[w.point].position;
                 format!(
-                    "frame {} at ({:.1}, {:.1}, {:.1}) {:+.1} mm off",
-                    w.frame, p.x, p.y, p.z, w.residual_mm
+                    "{} at ({:.1}, {:.1}, {:.1}) {:+.1} mm off",
+                    names[w.frame], p.x, p.y, p.z, w.residual_mm
                 )
             })
             .collect();
@@ -417,10 +418,10 @@ pub fn fit_notes(analysis: &BackAnalysis, frames: &[Frame]) -> Vec<String> {
     for p in &analysis.planes_left_out {
         let [x, y, z] = p.centre;
         notes.push(format!(
-            "frame {}: a plane larger than the back left out (a wall or the floor in view): {} \
-             points about ({x:.0}, {y:.0}, {z:.0}) in the camera system, {:.0} mm beyond the \
-             back; the back is the largest surface that is not a plane",
-            p.frame, p.points, p.beyond_mm
+            "{}: a plane larger than the back left out (a wall or the floor in view): {} points \
+             about ({x:.0}, {y:.0}, {z:.0}) in the camera system, {:.0} mm beyond the back; the \
+             back is the largest surface that is not a plane",
+            names[p.frame], p.points, p.beyond_mm
         ));
     }
     notes

@@ -706,7 +706,8 @@ fn the_plane_check_tells_a_sound_calibration_from_a_bent_one() {
 
 /// The back, standing 200 mm left of the camera's axis, before a wall within the working depth
 /// (beside the back the wall is larger than it): the live surface is the back's, and its notes
-/// name the wall left out in each frame, where it lies and how far beyond the back.
+/// name the wall left out in each frame (by its label), where it lies and how far beyond the
+/// back.
 #[test]
 fn a_wall_behind_the_back_is_named_on_the_surface() {
     let f = fixture();
@@ -743,6 +744,7 @@ fn a_wall_behind_the_back_is_named_on_the_surface() {
             .parse()
             .unwrap();
         // The wall stands 140 mm behind the skin, 1,500 mm from the camera.
+        assert!(wall.starts_with("frame w0"), "named by its label: {wall}");
         assert!((z + WALL_MM).abs() < 10.0, "{wall}");
         assert!((120.0..160.0).contains(&beyond), "{wall}");
     }
