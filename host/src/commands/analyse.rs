@@ -4,11 +4,11 @@ use super::args::OutputArgs;
 use crate::io::analysis_file::read_report;
 use crate::io::atomic::write_all_atomic;
 use crate::report::back_report::{
-    analysis_note, comparison_notes, indices, plus_minus, report_html,
+    analysis_note, comparison_notes, indices, plus_minus, posture_text, report_html,
 };
 use crate::report::console::Output;
 use crate::workflows::back::analyse_clouds;
-use anyhow::Result;
+use anyhow::{bail, Result};
 use deltaz_surface::{compare, Options};
 use nalgebra::Vector3;
 use std::path::PathBuf;
@@ -47,9 +47,14 @@ pub enum What {
         /// Standing (`standing`) or bent forward (`forward-bent`: the scoliometer reading).
         #[arg(long, default_value = "standing")]
         posture: PostureArg,
-        /// The vertical in the camera system (standing; default 0,1,0).
+        /// Standing: the vertical in the camera system (default 0,1,0).
         #[arg(long, value_parser = triple, allow_hyphen_values = true)]
         vertical: Option<[f64; 3]>,
+        /// Bent forward: the trunk's axis toward the head in the camera system (default the
+        /// back's longest direction, toward the image's left: the head to the left). A head
+        /// taken the wrong way turns the scoliometer's and the rotation's signs.
+        #[arg(long, value_parser = triple, allow_hyphen_values = true)]
+        head: Option<[f64; 3]>,
         #[command(flatten)]
         output: OutputArgs,
     },
@@ -96,14 +101,27 @@ pub fn exec(what: What) -> Result<()> {
             out,
             posture,
             vertical,
+            head,
             output,
         } => {
             let output = Output::from(output);
-            let mut options = match posture {
-                PostureArg::Standing => Options::standing(),
-                PostureArg::ForwardBent => Options::forward_bent(),
+            let options = match (posture, vertical, head) {
+                (PostureArg::Standing, _, Some(_)) => bail!(
+                    "--head is for a back bent forward (--posture forward-bent); standing, give \
+                     --vertical"
+                ),
+                (PostureArg::ForwardBent, Some(_), _) => {
+                    bail!("--vertical is for a back standing; bent forward, give --head")
+                }
+                (PostureArg::Standing, vertical, None) => Options {
+                    vertical: vertical.map(Vector3::from),
+                    ..Options::standing()
+                },
+                (PostureArg::ForwardBent, None, head) => Options {
+                    axis: head.map(Vector3::from),
+                    ..Options::forward_bent()
+                },
             };
-            options.vertical = vertical.map(Vector3::from);
             let progress = output.progress(format!("analysing {} clouds", clouds.len()));
             let report = analyse_clouds(&clouds, system.as_deref(), sigma, thin, &options)?;
             progress.finish_and_clear();
@@ -118,7 +136,8 @@ pub fn exec(what: What) -> Result<()> {
             ])?;
             let a = &report.analysis;
             let mut text = format!(
-                "{} frames, {} points, {} levels (surface measurements, not a diagnosis):\n",
+                "{}; {} frames, {} points, {} levels (surface measurements, not a diagnosis):\n",
+                posture_text(a),
                 a.frames,
                 a.points,
                 a.levels.len()

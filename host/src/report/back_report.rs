@@ -55,16 +55,13 @@ pub fn report_html(report: &BackReport) -> Result<String> {
              they are related to, but not the same as, the spine's curvature on a radiograph. \
              Each value is given with its standard deviation σ (about two in three repeated \
              measurements fall within ±σ).</p>\n";
-    let posture = match a.posture {
-        Posture::Standing => "standing",
-        Posture::ForwardBent => "bent forward (Adams position)",
-    };
     let _ = writeln!(
         html,
-        "<p>Posture: {posture}; {} frame(s), {} points on the back, dot spacing {:.1} mm, \
+        "<p>Posture: {}; {} frame(s), {} points on the back, dot spacing {:.1} mm, \
          calibration {}. Points' covariance: {}. Surface fit χ {:.2} (about 1 when the points' \
          σ hold); its misfit along the symmetry line {:.2} mm, detail between the dots, which \
          the line's and the rotation's σ include.</p>",
+        escape(&posture_text(a)),
         a.frames,
         a.points,
         a.spacing_mm,
@@ -200,6 +197,18 @@ pub fn comparison_notes(c: &Comparison, reports: [(&str, &BackReport); 2]) -> Ve
         }
     }
     notes
+}
+
+/// The posture and the trunk's axis as the analysis took them, in the camera system: standing,
+/// the vertical; bent forward, toward the head (taken the wrong way, the scoliometer's and the
+/// rotation's signs turn).
+pub fn posture_text(a: &BackAnalysis) -> String {
+    let [x, y, z] = a.axes.axis;
+    let posture = match a.posture {
+        Posture::Standing => "standing, the vertical",
+        Posture::ForwardBent => "bent forward (Adams position), the head toward",
+    };
+    format!("{posture} ({x:.2}, {y:.2}, {z:.2}) in the camera system")
 }
 
 /// What the reader must know of the analysis, if anything: a profile that reads as a back

@@ -779,3 +779,83 @@ fn analyse_back_notes_a_back_upside_down() {
         );
     }
 }
+
+/// A back bent forward is read with the head toward the image's left unless told otherwise
+/// (`--head`): the command and the report say which way it was taken. Seen with the head to
+/// the right (the scene turned 180° about the line of sight), the default reads the
+/// scoliometer's sign turned; told the head, the measures are those of the back seen the
+/// usual way. --head standing and --vertical bent forward are refused.
+#[test]
+fn analyse_back_takes_the_head_of_a_back_bent_forward() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BackModel::forward_bent(Deformity::thoracic());
+    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), 12);
+    let turned: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| Vector3::new(-p.x, -p.y, p.z))
+        .collect();
+    std::fs::write(d.join("bent.ply"), plain(&points)).unwrap();
+    std::fs::write(d.join("turned.ply"), plain(&turned)).unwrap();
+    let run = |cloud: &str, out: &str, extra: &[&str]| {
+        let mut args = vec!["analyse", "back", "--cloud", cloud, "--sigma", "0.4"];
+        args.extend(["--posture", "forward-bent", "--out", out]);
+        args.extend(extra);
+        deltaz_in(d, &args)
+    };
+    let atr = |a: &serde_json::Value| {
+        let value = a["atr_max_deg"].as_f64().unwrap();
+        (value, a["atr_max_deg_sigma"].as_f64().unwrap())
+    };
+    // Told nothing: the head to the image's left, and said so.
+    let out = run("bent.ply", "b", &[]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && stdout.contains("the head toward (-1.00, "),
+        "{stdout}"
+    );
+    let html = std::fs::read_to_string(d.join("b/report.html")).unwrap();
+    assert!(html.contains("bent forward (Adams position), the head toward (-1.00, "));
+    let usual = json(&run("bent.ply", "bj", &["--json"]));
+    let (value, sigma) = atr(&usual);
+    assert!(value.abs() > 5.0 * sigma, "ATR {value:.2} ± {sigma:.2}°");
+    // The head to the right, not told: the reading turned.
+    let (wrong, wrong_sigma) = atr(&json(&run("turned.ply", "t", &["--json"])));
+    assert!(
+        wrong.signum() != value.signum() && (wrong + value).abs() < 3.0 * sigma.max(wrong_sigma),
+        "ATR {wrong:.2} ± {wrong_sigma:.2}° against {value:.2}°"
+    );
+    // Told: the usual reading, to 0.01°.
+    let axis: Vec<f64> = usual["axes"]["axis"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect();
+    let head = format!("{},{},{}", -axis[0], -axis[1], axis[2]);
+    let told = json(&run("turned.ply", "h", &["--head", &head, "--json"]));
+    let (righted, _) = atr(&told);
+    assert!(
+        (righted - value).abs() < 0.01,
+        "ATR {righted:.3}° against {value:.3}°"
+    );
+    // Each direction with its posture only.
+    for (args, said) in [
+        (
+            vec!["--posture", "standing", "--head", "1,0,0"],
+            "--head is for a back bent forward",
+        ),
+        (
+            vec!["--posture", "forward-bent", "--vertical", "0,1,0"],
+            "--vertical is for a back standing",
+        ),
+    ] {
+        let mut all = vec!["analyse", "back", "--cloud", "bent.ply", "--sigma", "0.4"];
+        all.extend(args);
+        all.extend(["--out", "refused"]);
+        let out = deltaz_in(d, &all);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && stderr.contains(said), "{stderr}");
+        assert!(!d.join("refused").exists());
+    }
+}
