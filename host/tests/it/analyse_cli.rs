@@ -722,6 +722,18 @@ fn analyse_back_leaves_out_a_wall_and_the_floor() {
     line_holds(&analysed, &model);
 }
 
+/// `model` as a cloud from elsewhere (`name`, its dots 20 mm apart, noise seeded by `seed`), and
+/// the same points turned 180° about the line of sight (`turned.ply`): (x, y, z) → (−x, −y, z).
+fn write_turned(d: &Path, model: &BackModel, name: &str, seed: u64) {
+    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), seed);
+    let turned: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| Vector3::new(-p.x, -p.y, p.z))
+        .collect();
+    std::fs::write(d.join(name), plain(&points)).unwrap();
+    std::fs::write(d.join("turned.ply"), plain(&turned)).unwrap();
+}
+
 /// A cloud whose +y points to the feet (the back model's turned 180° about the line of
 /// sight, as a camera mounted upside down sees it): analysed, its report and the command say
 /// its profile is that of a back seen upside down and name --vertical 0,-1,0; told so, the
@@ -730,14 +742,12 @@ fn analyse_back_leaves_out_a_wall_and_the_floor() {
 fn analyse_back_notes_a_back_upside_down() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let model = BackModel::standing(Deformity::thoracic());
-    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), 11);
-    let turned: Vec<Vector3<f64>> = points
-        .iter()
-        .map(|p| Vector3::new(-p.x, -p.y, p.z))
-        .collect();
-    std::fs::write(d.join("upright.ply"), plain(&points)).unwrap();
-    std::fs::write(d.join("turned.ply"), plain(&turned)).unwrap();
+    write_turned(
+        d,
+        &BackModel::standing(Deformity::thoracic()),
+        "upright.ply",
+        11,
+    );
     let analyse = |cloud: &str, out: &str, vertical: Option<&str>| {
         let mut args = vec!["analyse", "back", "--cloud", cloud, "--sigma", "0.4"];
         args.extend(vertical.map(|v| ["--vertical", v]).iter().flatten());
@@ -789,14 +799,12 @@ fn analyse_back_notes_a_back_upside_down() {
 fn analyse_back_takes_the_head_of_a_back_bent_forward() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let model = BackModel::forward_bent(Deformity::thoracic());
-    let points = noisy(&model.sample(&Lattice::beside_camera(20.0)), 12);
-    let turned: Vec<Vector3<f64>> = points
-        .iter()
-        .map(|p| Vector3::new(-p.x, -p.y, p.z))
-        .collect();
-    std::fs::write(d.join("bent.ply"), plain(&points)).unwrap();
-    std::fs::write(d.join("turned.ply"), plain(&turned)).unwrap();
+    write_turned(
+        d,
+        &BackModel::forward_bent(Deformity::thoracic()),
+        "bent.ply",
+        12,
+    );
     let run = |cloud: &str, out: &str, extra: &[&str]| {
         let mut args = vec!["analyse", "back", "--cloud", cloud, "--sigma", "0.4"];
         args.extend(["--posture", "forward-bent", "--out", out]);
