@@ -48,12 +48,12 @@ pub enum What {
         #[arg(long, default_value = "standing")]
         posture: PostureArg,
         /// Standing: the vertical in the camera system (default 0,1,0).
-        #[arg(long, value_parser = triple, allow_hyphen_values = true)]
+        #[arg(long, value_parser = direction, allow_hyphen_values = true)]
         vertical: Option<[f64; 3]>,
         /// Bent forward: the trunk's axis toward the head in the camera system (default the
         /// back's longest direction, toward the image's left: the head to the left). A head
         /// taken the wrong way turns the scoliometer's and the rotation's signs.
-        #[arg(long, value_parser = triple, allow_hyphen_values = true)]
+        #[arg(long, value_parser = direction, allow_hyphen_values = true)]
         head: Option<[f64; 3]>,
         #[command(flatten)]
         output: OutputArgs,
@@ -79,11 +79,21 @@ pub enum PostureArg {
     ForwardBent,
 }
 
-/// A `--flag X,Y,Z` value.
-fn triple(text: &str) -> Result<[f64; 3], String> {
+/// A `--vertical` or `--head` value: a direction X,Y,Z in the camera system with a part across
+/// the line of sight (z, toward the camera, is the analysis' depth).
+fn direction(text: &str) -> Result<[f64; 3], String> {
     let parts: Result<Vec<f64>, _> = text.split(',').map(|s| s.trim().parse::<f64>()).collect();
     match parts.as_deref() {
-        Ok([x, y, z]) if [x, y, z].iter().all(|v| v.is_finite()) => Ok([*x, *y, *z]),
+        Ok(&[x, y, z]) if [x, y, z].iter().all(|v| v.is_finite()) => {
+            if x.hypot(y) <= 1e-9 * x.hypot(y).hypot(z) || [x, y, z] == [0.0; 3] {
+                Err(format!(
+                    "{text:?} lies along the line of sight (z) or is no direction: it must lie \
+                     across the image"
+                ))
+            } else {
+                Ok([x, y, z])
+            }
+        }
         _ => Err(format!(
             "{text:?} is not three comma-separated numbers X,Y,Z"
         )),

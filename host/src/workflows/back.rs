@@ -368,8 +368,8 @@ pub fn analyse_with(
         names += &format!(" (thinned to {s} mm)");
     }
     let analysis = analyse(&frames, options).map_err(|e| anyhow::anyhow!("{names}: {e}"))?;
-    let names: Vec<String> = (0..frames.len()).map(|k| format!("frame {k}")).collect();
-    notes.extend(fit_notes(&analysis, &frames, &names));
+    let frame_names: Vec<String> = (0..frames.len()).map(|k| format!("frame {k}")).collect();
+    notes.extend(fit_notes(&analysis, &frames, &frame_names));
     let fingerprint = match sigma {
         PointSigma::Calibration(c) => Some(c.fingerprint().to_owned()),
         _ => fingerprint,

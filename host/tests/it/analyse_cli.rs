@@ -794,7 +794,8 @@ fn analyse_back_notes_a_back_upside_down() {
 /// (`--head`): the command and the report say which way it was taken. Seen with the head to
 /// the right (the scene turned 180° about the line of sight), the default reads the
 /// scoliometer's sign turned; told the head, the measures are those of the back seen the
-/// usual way. --head standing and --vertical bent forward are refused.
+/// usual way. --head standing, --vertical bent forward and a direction along the line of sight
+/// are refused.
 #[test]
 fn analyse_back_takes_the_head_of_a_back_bent_forward() {
     let dir = tempfile::tempdir().unwrap();
@@ -856,6 +857,14 @@ fn analyse_back_takes_the_head_of_a_back_bent_forward() {
         (
             vec!["--posture", "forward-bent", "--vertical", "0,1,0"],
             "--vertical is for a back standing",
+        ),
+        (
+            vec!["--posture", "forward-bent", "--head", "0,0,-2"],
+            "\"0,0,-2\" lies along the line of sight (z)",
+        ),
+        (
+            vec!["--vertical", "0,0,0"],
+            "\"0,0,0\" lies along the line of sight (z) or is no direction",
         ),
     ] {
         let mut all = vec!["analyse", "back", "--cloud", "bent.ply", "--sigma", "0.4"];
