@@ -127,6 +127,12 @@ pub enum SurfaceError {
     Singular,
     /// No level across the back where a symmetry line could be found.
     NoLevels,
+    /// The symmetry line is undetermined: its σ at the median level exceeds
+    /// [`analysis::LINE_UNDETERMINED_MM`] (a surface without a back's features).
+    LineUndetermined {
+        /// The line's σ at the median level (mm).
+        sigma_mm: f64,
+    },
     /// The options are unusable.
     BadOptions(String),
 }
@@ -163,6 +169,14 @@ impl std::fmt::Display for SurfaceError {
             } => write!(
                 f,
                 "frame {frame} has {points} points, a back needs at least {needed}"
+            ),
+            SurfaceError::LineUndetermined { sigma_mm } => write!(
+                f,
+                "no back's symmetry line: its σ is {sigma_mm:.0} mm at the median level (over {} \
+                 mm), so the surface lacks a back's features (the spinous groove, the muscles \
+                 beside it), as a surface of even curvature does: each of its sections is mirror \
+                 symmetric about any of its normals",
+                analysis::LINE_UNDETERMINED_MM
             ),
             SurfaceError::NoBack { frame, problem } => {
                 write!(f, "frame {frame}: no back in view: {problem}")

@@ -376,6 +376,26 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         assert!(!out.status.success() && err.contains(expect), "{err}");
         assert!(!d.join("x").exists(), "{name}: nothing written");
     }
+    // A surface of even curvature (a paraboloid, 20 mm apart): no feature fixes a symmetry
+    // line, standing or bent forward.
+    let bowl: Vec<Vector3<f64>> = (-15..=15)
+        .flat_map(|i| (-10..=10).map(move |j| (20.0 * f64::from(i), 20.0 * f64::from(j))))
+        .map(|(x, y)| Vector3::new(x, y, -1500.0 + 0.0005 * x * x + 0.0003 * y * y))
+        .collect();
+    std::fs::write(d.join("bowl.ply"), plain(&bowl)).unwrap();
+    for posture in ["standing", "forward-bent"] {
+        let args = ["analyse", "back", "--cloud", "bowl.ply", "--sigma", "0.4"];
+        let out = deltaz_in(
+            d,
+            &[&args[..], &["--posture", posture, "--out", "x"]].concat(),
+        );
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("bowl.ply: no back's symmetry line: its σ is"),
+            "{posture}: {err}"
+        );
+        assert!(!d.join("x").exists(), "{posture}: nothing written");
+    }
 }
 
 /// Where the back's left side is out of view beside the spine (the measured surface ends
