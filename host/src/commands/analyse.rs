@@ -85,7 +85,8 @@ fn direction(text: &str) -> Result<[f64; 3], String> {
     let parts: Result<Vec<f64>, _> = text.split(',').map(|s| s.trim().parse::<f64>()).collect();
     match parts.as_deref() {
         Ok(&[x, y, z]) if [x, y, z].iter().all(|v| v.is_finite()) => {
-            if x.hypot(y) <= 1e-9 * x.hypot(y).hypot(z) || [x, y, z] == [0.0; 3] {
+            // Zero, or without a part across z (the hypot of nought is nought).
+            if x.hypot(y) <= 1e-9 * x.hypot(y).hypot(z) {
                 Err(format!(
                     "{text:?} lies along the line of sight (z) or is no direction: it must lie \
                      across the image"

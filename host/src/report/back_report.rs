@@ -217,15 +217,15 @@ pub fn posture_text(a: &BackAnalysis) -> String {
 /// and the station say it alike.
 pub fn analysis_note(a: &BackAnalysis) -> Option<String> {
     let mut notes = Vec::new();
-    if a.looks_upside_down() {
+    let upside_down = a.looks_upside_down().then(|| a.sagittal_mid_excess_deg());
+    if let Some(excess) = upside_down.flatten() {
         notes.push(format!(
             "The back's sagittal profile is that of a back seen upside down: its slope is least \
-             at mid height and steepest toward both ends ({:+.1}° from the middle third to the \
-             outer ones, where a back standing reads +7 to +23°). If the cloud's +y points to \
-             the feet (a camera mounted upside down, a scanner writing y down), every profile \
+             at mid height and steepest toward both ends ({excess:+.1}° from the middle third to \
+             the outer ones, where a back standing reads +7 to +23°). If the cloud's +y points \
+             to the feet (a camera mounted upside down, a scanner writing y down), every profile \
              here is reversed and the rotation's sign turned: analyse it again with --vertical \
-             0,-1,0.",
-            a.sagittal_mid_excess_deg().unwrap_or(f64::NAN)
+             0,-1,0."
         ));
     }
     notes.extend(line_note(a));

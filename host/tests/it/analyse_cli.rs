@@ -341,8 +341,7 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         .map(|p| p / 1000.0)
         .collect();
     std::fs::write(d.join("metres.ply"), plain(&metres)).unwrap();
-    let args = ["analyse", "back", "--cloud", "metres.ply", "--sigma", "0.4"];
-    let out = deltaz_in(d, &[&args[..], &["--out", "x"]].concat());
+    let out = analyse_plain(d, "metres.ply", "x", &[]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success()
@@ -370,8 +369,7 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         let mut marked = points.clone();
         marked[7] = mark;
         std::fs::write(d.join(name), plain(&marked)).unwrap();
-        let args = ["analyse", "back", "--cloud", name, "--sigma", "0.4"];
-        let out = deltaz_in(d, &[&args[..], &["--out", "x"]].concat());
+        let out = analyse_plain(d, name, "x", &[]);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(expect), "{err}");
         assert!(!d.join("x").exists(), "{name}: nothing written");
@@ -384,11 +382,7 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         .collect();
     std::fs::write(d.join("bowl.ply"), plain(&bowl)).unwrap();
     for posture in ["standing", "forward-bent"] {
-        let args = ["analyse", "back", "--cloud", "bowl.ply", "--sigma", "0.4"];
-        let out = deltaz_in(
-            d,
-            &[&args[..], &["--posture", posture, "--out", "x"]].concat(),
-        );
+        let out = analyse_plain(d, "bowl.ply", "x", &["--posture", posture]);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
             !out.status.success() && err.contains("bowl.ply: no back's symmetry line: its σ is"),
@@ -754,6 +748,15 @@ fn write_turned(d: &Path, model: &BackModel, name: &str, seed: u64) {
     std::fs::write(d.join("turned.ply"), plain(&turned)).unwrap();
 }
 
+/// `deltaz analyse back --cloud CLOUD --sigma 0.4 --out OUT EXTRA...` in `d`: a cloud from
+/// elsewhere, its points' σ given.
+fn analyse_plain(d: &Path, cloud: &str, out: &str, extra: &[&str]) -> Output {
+    let args = [
+        "analyse", "back", "--cloud", cloud, "--sigma", "0.4", "--out", out,
+    ];
+    deltaz_in(d, &[&args[..], extra].concat())
+}
+
 /// A cloud whose +y points to the feet (the back model's turned 180° about the line of
 /// sight, as a camera mounted upside down sees it): analysed, its report and the command say
 /// its profile is that of a back seen upside down and name --vertical 0,-1,0; told so, the
@@ -769,10 +772,9 @@ fn analyse_back_notes_a_back_upside_down() {
         11,
     );
     let analyse = |cloud: &str, out: &str, vertical: Option<&str>| {
-        let mut args = vec!["analyse", "back", "--cloud", cloud, "--sigma", "0.4"];
-        args.extend(vertical.map(|v| ["--vertical", v]).iter().flatten());
-        args.extend(["--out", out, "--json"]);
-        let out = deltaz_in(d, &args);
+        let mut extra = vec!["--json"];
+        extra.extend(vertical.map(|v| ["--vertical", v]).iter().flatten());
+        let out = analyse_plain(d, cloud, out, &extra);
         let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
         (json(&out), stderr)
     };
@@ -827,10 +829,12 @@ fn analyse_back_takes_the_head_of_a_back_bent_forward() {
         12,
     );
     let run = |cloud: &str, out: &str, extra: &[&str]| {
-        let mut args = vec!["analyse", "back", "--cloud", cloud, "--sigma", "0.4"];
-        args.extend(["--posture", "forward-bent", "--out", out]);
-        args.extend(extra);
-        deltaz_in(d, &args)
+        analyse_plain(
+            d,
+            cloud,
+            out,
+            &[&["--posture", "forward-bent"], extra].concat(),
+        )
     };
     let atr = |a: &serde_json::Value| {
         let value = a["atr_max_deg"].as_f64().unwrap();
@@ -887,10 +891,7 @@ fn analyse_back_takes_the_head_of_a_back_bent_forward() {
             "\"0,0,0\" lies along the line of sight (z) or is no direction",
         ),
     ] {
-        let mut all = vec!["analyse", "back", "--cloud", "bent.ply", "--sigma", "0.4"];
-        all.extend(args);
-        all.extend(["--out", "refused"]);
-        let out = deltaz_in(d, &all);
+        let out = analyse_plain(d, "bent.ply", "refused", &args);
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && stderr.contains(said), "{stderr}");
         assert!(!d.join("refused").exists());

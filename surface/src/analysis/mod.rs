@@ -350,15 +350,11 @@ impl BackAnalysis {
         if self.posture != Posture::Standing || n < 6 {
             return None;
         }
-        let mean = |levels: &mut dyn Iterator<Item = &Level>| {
-            let (sum, count) =
-                levels.fold((0.0, 0.0), |(s, c), l| (s + l.sagittal_slope_deg, c + 1.0));
-            sum / count
-        };
-        let (lower, upper) = (n / 3, n - n / 3);
-        let middle = mean(&mut self.levels[lower..upper].iter());
-        let outer = mean(&mut self.levels[..lower].iter().chain(&self.levels[upper..]));
-        Some(middle - outer)
+        let sum = |levels: &[Level]| levels.iter().map(|l| l.sagittal_slope_deg).sum::<f64>();
+        let middle = &self.levels[n / 3..n - n / 3];
+        let (all, mid) = (sum(&self.levels), sum(middle));
+        let outer = n - middle.len();
+        Some(mid / middle.len() as f64 - (all - mid) / outer as f64)
     }
 
     /// Whether the sagittal profile is that of a back seen upside down (its mid-height excess,
