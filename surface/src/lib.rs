@@ -127,11 +127,12 @@ pub enum SurfaceError {
     Singular,
     /// No level across the back where a symmetry line could be found.
     NoLevels,
-    /// The symmetry line is undetermined: its σ at the median level exceeds
-    /// [`analysis::LINE_UNDETERMINED_MM`] (a surface without a back's features).
+    /// The symmetry line is undetermined: the sections are about as symmetric about any
+    /// position, their asymmetry under [`analysis::LINE_UNDETERMINED`] times the noise's (a
+    /// surface without a back's features).
     LineUndetermined {
-        /// The line's σ at the median level (mm).
-        sigma_mm: f64,
+        /// [`analysis::BackAnalysis::asymmetry_over_noise`].
+        asymmetry: f64,
     },
     /// The options are unusable.
     BadOptions(String),
@@ -170,13 +171,13 @@ impl std::fmt::Display for SurfaceError {
                 f,
                 "frame {frame} has {points} points, a back needs at least {needed}"
             ),
-            SurfaceError::LineUndetermined { sigma_mm } => write!(
+            SurfaceError::LineUndetermined { asymmetry } => write!(
                 f,
-                "no back's symmetry line: its σ is {sigma_mm:.0} mm at the median level (over {} \
-                 mm), so the surface lacks a back's features (the spinous groove, the muscles \
-                 beside it), as a surface of even curvature does: each of its sections is mirror \
-                 symmetric about any of its normals",
-                analysis::LINE_UNDETERMINED_MM
+                "no back's symmetry line: the surface is about as symmetric about any position \
+                 across it, its asymmetry {asymmetry:.1} times what the points' noise makes \
+                 (under {}), as a surface of even curvature is: it lacks a back's features (the \
+                 spinous groove, the muscles beside it), or its points' σ is overstated",
+                analysis::LINE_UNDETERMINED
             ),
             SurfaceError::NoBack { frame, problem } => {
                 write!(f, "frame {frame}: no back in view: {problem}")

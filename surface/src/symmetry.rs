@@ -87,9 +87,10 @@ fn taper(t: f64, w: f64) -> f64 {
     (1.0 - (t / w).powi(2)).powi(2)
 }
 
-fn offsets(w: f64) -> impl Iterator<Item = (f64, f64)> {
-    (0..SAMPLES).flat_map(move |k| {
-        let t = w * (k as f64 + 0.5) / SAMPLES as f64;
+/// The window's offsets either side, `samples` a side, with their weights.
+fn offsets(w: f64, samples: usize) -> impl Iterator<Item = (f64, f64)> {
+    (0..samples).flat_map(move |k| {
+        let t = w * (k as f64 + 0.5) / samples as f64;
         [(t, taper(t, w)), (-t, taper(t, w))]
     })
 }
@@ -98,7 +99,7 @@ fn offsets(w: f64) -> impl Iterator<Item = (f64, f64)> {
 /// coarse search), and the linear term's slope.
 fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
     let (mut dd, mut dt, mut tt, mut total) = (0.0, 0.0, 0.0, 0.0);
-    for (t, wt) in offsets(w).filter(|(t, _)| *t > 0.0) {
+    for (t, wt) in offsets(w, SAMPLES).filter(|(t, _)| *t > 0.0) {
         let d = fit.value(x + t, v, D::S)? - fit.value(x - t, v, D::S)?;
         dd += wt * d * d;
         dt += wt * d * t;
@@ -108,6 +109,50 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
     Some(((dd - dt * dt / tt) / total, dt / (2.0 * tt)))
 }
 
+/// The section's asymmetry about the positions `across` (the coarse search's), against the
+/// points' noise: the median of the odd part's misfit ([`odd_misfit`]) there, over the misfit
+/// the fit's noise alone makes at x, E[e] = Σ w_t var(d_t − b t) / Σ w_t, d_t = s(x + t) −
+/// s(x − t) and b their linear term (the fit's covariance: the points' own and the
+/// calibration's common share), over a quarter of the misfit's samples (the integral is
+/// smooth; each sample costs a solve with the fit's factor). Away from a back's symmetry line
+/// its trunk is far from symmetric: tens to hundreds. A section symmetric about every point
+/// (of even curvature) is asymmetric by its noise alone, and reads about 1 (NaN where the noise
+/// is nought).
+pub(crate) fn asymmetry(fit: &Fit, v: f64, x: f64, w: f64, across: &[Candidate]) -> Option<f64> {
+    let mut misfits: Vec<f64> = across
+        .iter()
+        .filter_map(|c| odd_misfit(fit, v, c.0, w).map(|m| m.0))
+        .collect();
+    misfits.sort_by(f64::total_cmp);
+    let typical = *misfits.get(misfits.len() / 2)?;
+    let half: Vec<(f64, f64)> = offsets(w, SAMPLES / 4).filter(|(t, _)| *t > 0.0).collect();
+    let odd: Vec<DVector<f64>> = half
+        .iter()
+        .map(|(t, _)| {
+            let mut g = fit.zero();
+            fit.add(&mut g, x + t, v, D::S, 1.0);
+            fit.add(&mut g, x - t, v, D::S, -1.0);
+            g
+        })
+        .collect();
+    let tt: f64 = half.iter().map(|(t, wt)| wt * t * t).sum();
+    let mut linear = fit.zero();
+    for ((t, wt), g) in half.iter().zip(&odd) {
+        linear.axpy(wt * t / tt, g, 1.0);
+    }
+    let beyond: Vec<DVector<f64>> = half
+        .iter()
+        .zip(odd)
+        .map(|((t, _), g)| g - &linear * *t)
+        .collect();
+    let (mut noise, mut total) = (0.0, 0.0);
+    for ((_, wt), var) in half.iter().zip(fit.variances(&beyond)) {
+        noise += wt * var;
+        total += wt;
+    }
+    Some(typical / (noise / total))
+}
+
 /// The misfit of the reflection about the surface's normal at x (the refinement's residual,
 /// blind to a turn of the section), per unit weight, and the slope there.
 fn normal_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
@@ -115,7 +160,7 @@ fn normal_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
     let (m, _) = reflection(slope.atan());
     let p = Vector2::new(x, fit.value(x, v, D::S)?);
     let (mut rr, mut total) = (0.0, 0.0);
-    for (t, wt) in offsets(w) {
+    for (t, wt) in offsets(w, SAMPLES) {
         let (_, _, r) = mirrored(fit, v, (p, &m), t)?;
         rr += wt * r * r;
         total += wt;
@@ -229,7 +274,7 @@ pub(crate) fn symmetry_at(
         let mut ata = Matrix2::zeros();
         let mut atr = Vector2::zeros();
         let mut rows = Vec::with_capacity(2 * SAMPLES);
-        for (t, wt) in offsets(w) {
+        for (t, wt) in offsets(w, SAMPLES) {
             let r = residual(fit, v, x, theta, t)?;
             ata += wt * r.jp * r.jp.transpose();
             atr += wt * r.jp * r.r;

@@ -22,7 +22,8 @@ fn report(what: &str, e: &IndexErrors) {
     eprintln!(
         "{what}: symmetry x {:.2} mm (error/σ {:.2}), rotation {:.3}° ({:.2}), largest |rotation| up to {:.2}° \
          (its error {:.3}°, {:.2}), RMS rotation {:.3}° ({:.2}), ATR {:.3}° ({:.2}), largest ATR {:.3}° ({:.2}); \
-         levels left out {}, points left out as wild {} in {} draws; sagittal mid-height excess {}",
+         levels left out {}, points left out as wild {} in {} draws; sagittal mid-height excess {}; \
+         asymmetry over the noise {}",
         e.symmetry_x.rms(),
         e.symmetry_x.z(),
         e.rotation.rms(),
@@ -40,6 +41,7 @@ fn report(what: &str, e: &IndexErrors) {
         e.wild,
         e.largest_rotation.len(),
         e.mid_excess_range(),
+        e.asymmetry_over_noise_range(),
     );
 }
 

@@ -158,7 +158,7 @@ fn report(what: &str, e: &IndexErrors) {
         format!("{name} {:.3} {unit} ({:.2})", x.rms(), x.z())
     };
     eprintln!(
-        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°; levels left out {}, wild points {}, planes left out {}; sagittal mid-height excess {}",
+        "{what} (image path, {DRAWS} draws; RMS error (RMS error/σ)): {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}; largest |rotation| up to {:.2}°; levels left out {}, wild points {}, planes left out {}; sagittal mid-height excess {}; asymmetry over the noise {}",
         line("symmetry x", &e.symmetry_x, "mm"),
         line("rotation", &e.rotation, "°"),
         line("skin angle", &e.skin_angle, "°"),
@@ -179,6 +179,7 @@ fn report(what: &str, e: &IndexErrors) {
         e.wild,
         e.planes,
         e.mid_excess_range(),
+        e.asymmetry_over_noise_range(),
     );
 }
 

@@ -119,7 +119,12 @@ fn correlations(readings: &[Reading], lattice: Lattice) -> [f64; 3] {
         [Reading::rotation, Reading::scoliometer, Reading::asymmetry];
     let [rotation, atr, asymmetry] = measures.map(|f| r(readings, f));
     let fewest = fewest_levels(readings);
-    eprintln!("{lattice:?}, {} patients: fewest levels {fewest}, r(largest rotation, Cobb) = {rotation:.3}, r(scoliometer, Cobb) = {atr:.3}, r(largest asymmetry, Cobb) = {asymmetry:.3}", readings.len());
+    let least = |bent: bool| {
+        let over = readings.iter().map(|p| p.pose(bent).asymmetry_over_noise);
+        over.fold(f64::INFINITY, f64::min)
+    };
+    let (upright, bent) = (least(false), least(true));
+    eprintln!("{lattice:?}, {} patients: fewest levels {fewest}, r(largest rotation, Cobb) = {rotation:.3}, r(scoliometer, Cobb) = {atr:.3}, r(largest asymmetry, Cobb) = {asymmetry:.3}; least asymmetry over the noise {upright:.1} upright, {bent:.1} bent forward", readings.len());
     assert!(fewest >= 14, "{lattice:?}: {fewest} levels");
     assert!(
         rotation >= 0.6,

@@ -254,6 +254,8 @@ pub struct IndexErrors {
     pub upside_down: usize,
     /// Each standing draw's sagittal mid-height excess (°).
     pub mid_excess: Vec<f64>,
+    /// Each draw's asymmetry over the noise (`BackAnalysis::asymmetry_over_noise`).
+    pub asymmetry_over_noise: Vec<f64>,
     /// The points left out of the fit as wild, all draws.
     pub wild: usize,
     /// The planes larger than the back left out (a wall in view), all draws.
@@ -265,6 +267,16 @@ fn largest(values: impl Iterator<Item = f64>) -> f64 {
     values.fold(0.0, |m: f64, x| if x.abs() > m.abs() { x } else { m })
 }
 
+/// The least and the greatest of `values` (None if there are none).
+fn range(values: &[f64]) -> Option<(f64, f64)> {
+    let first = *values.first()?;
+    Some(
+        values
+            .iter()
+            .fold((first, first), |(lo, hi), &x| (lo.min(x), hi.max(x))),
+    )
+}
+
 /// The root mean square of `values`.
 fn rms(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, n) = values.fold((0.0, 0.0), |(s, n), x| (s + x * x, n + 1.0));
@@ -274,17 +286,15 @@ fn rms(values: impl Iterator<Item = f64>) -> f64 {
 impl IndexErrors {
     /// The range of the standing draws' sagittal mid-height excess, as printed.
     pub fn mid_excess_range(&self) -> String {
-        let (lo, hi) = self
-            .mid_excess
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
-                (lo.min(x), hi.max(x))
-            });
-        if self.mid_excess.is_empty() {
-            "none (bent forward)".into()
-        } else {
+        range(&self.mid_excess).map_or("none (bent forward)".into(), |(lo, hi)| {
             format!("{lo:+.1} to {hi:+.1}°")
-        }
+        })
+    }
+
+    /// The range of the draws' asymmetry over the noise, as printed.
+    pub fn asymmetry_over_noise_range(&self) -> String {
+        range(&self.asymmetry_over_noise)
+            .map_or("none".into(), |(lo, hi)| format!("{lo:.0}-{hi:.0}"))
     }
 
     /// Adds an analysis of `model` (the frame 0 model of a scan) to the errors.
@@ -294,6 +304,7 @@ impl IndexErrors {
         self.lines_lost += usize::from(a.line_mostly_lost());
         self.upside_down += usize::from(a.looks_upside_down());
         self.mid_excess.extend(a.sagittal_mid_excess_deg());
+        self.asymmetry_over_noise.push(a.asymmetry_over_noise);
         self.wild += a.wild.len();
         self.planes += a.planes_left_out.len();
         let mut truth = Vec::new();

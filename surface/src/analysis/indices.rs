@@ -154,6 +154,7 @@ impl Measured<'_> {
             skin_angle_distance_mm: skin_d,
             fit_chi: self.fit.chi(),
             misfit_mm: misfit,
+            asymmetry_over_noise: f64::NAN,
             levels: out_levels,
             levels_left_out: left_out,
             rotation_max_deg: deg(rot_max.value),

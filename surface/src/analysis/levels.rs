@@ -7,7 +7,7 @@ use crate::median;
 use crate::scoliometer::resting_line;
 use crate::spline::D;
 use crate::support::Support;
-use crate::symmetry::{coarse, symmetry_at, Candidate, Symmetry};
+use crate::symmetry::{asymmetry, coarse, symmetry_at, Candidate, Symmetry};
 use crate::SurfaceError;
 use nalgebra::DVector;
 
@@ -15,13 +15,15 @@ use nalgebra::DVector;
 type Run = (f64, (f64, f64));
 
 /// A level of the symmetry line: its symmetry point, a rival's where the line is ambiguous
-/// there, and the run (a from, a to) of measured surface along it.
+/// there, the run (a from, a to) of measured surface along it, and the section's asymmetry
+/// across the search against its noise ([`asymmetry`]).
 struct Found {
     v: f64,
     symmetry: Symmetry,
     rival: Option<Symmetry>,
     run: (f64, f64),
     window: f64,
+    asymmetry: f64,
 }
 
 /// A level's coarse search: its run, its candidates and the symmetry window's half-width.
@@ -231,7 +233,10 @@ impl Measured<'_> {
             .map(|r| r.0)
             .filter(|v| found.iter().all(|f| f.v != *v))
             .collect();
-        Ok(self.summarise(levels, left_out, w, skin_d, spacing, misfit))
+        Ok(BackAnalysis {
+            asymmetry_over_noise: median(found.iter().map(|f| f.asymmetry).collect()),
+            ..self.summarise(levels, left_out, w, skin_d, spacing, misfit)
+        })
     }
 
     /// The surface's misfit within `window` of the symmetry line `line` ((v, a) per level;
@@ -343,9 +348,11 @@ impl Measured<'_> {
                     Some(j) => Some(refined(j, Some(link.chosen))?),
                     None => None,
                 };
+                let symmetry = refined(link.chosen, link.rival)?;
                 Some(Found {
                     v,
-                    symmetry: refined(link.chosen, link.rival)?,
+                    asymmetry: asymmetry(self.fit, v, symmetry.a, w, candidates)?,
+                    symmetry,
                     rival,
                     run: level.run,
                     window: w,

@@ -247,6 +247,16 @@ pub struct BackAnalysis {
     /// symmetry window): detail between the dots, which the sampling terms of the symmetry
     /// line's and the rotation's σ scale with.
     pub misfit_mm: f64,
+    /// What makes the symmetry line a back's: how far from mirror symmetric the sections are
+    /// about the positions searched, against the points' noise (at the median level, the
+    /// median over the positions of the odd part's misfit over the symmetry window, over what
+    /// the noise alone makes it). A back's trunk is asymmetric away from its spine: the ten
+    /// real backs at 15 mm read 17 or more standing and 5 or more bent forward over five
+    /// lattice placements, the back model 120-210 at 20 mm. A surface without a back's features
+    /// is about as symmetric about one position as another, asymmetric by its noise alone:
+    /// about 1, and the analysis is refused under [`LINE_UNDETERMINED`].
+    #[serde(default)]
+    pub asymmetry_over_noise: f64,
     /// The symmetry line, level by level (bottom to top).
     pub levels: Vec<Level>,
     /// The levels (their y, bottom to top) where the back is measured across but the symmetry
@@ -333,13 +343,6 @@ impl BackAnalysis {
         self.levels.len() < self.levels_left_out.len()
     }
 
-    /// The symmetry line's σ at the median level (mm; None without levels).
-    pub fn median_line_sigma_mm(&self) -> Option<f64> {
-        let mut sigmas: Vec<f64> = self.levels.iter().map(|l| l.symmetry_x_sigma).collect();
-        sigmas.sort_by(f64::total_cmp);
-        sigmas.get(sigmas.len() / 2).copied()
-    }
-
     /// Standing: the mean sagittal slope of the middle third of the levels less that of the
     /// outer two thirds (None bent forward, or under six levels). A back standing is steepest
     /// at mid height (the thoraco-lumbar inflection, between the lordosis below and the
@@ -371,14 +374,16 @@ impl BackAnalysis {
     }
 }
 
-/// A symmetry line whose σ exceeds this at the median level (mm) is undetermined, and the
-/// analysis refused ([`SurfaceError::LineUndetermined`]): on a surface of even curvature every
-/// section is mirror symmetric about any of its normals (a paraboloid sampled 20 mm apart
-/// without noise read 490 mm). The real backs at 15 mm read at most 2.3 mm standing and 25 mm
-/// bent forward over five lattice placements (100 analyses). With noise such a surface's line
-/// settles on the noise, its σ understating its error (0.4 mm noise: 30 mm off at σ 6-9 mm):
-/// this catches the noise-free surface only.
-pub const LINE_UNDETERMINED_MM: f64 = 100.0;
+/// A surface whose sections are less asymmetric than this about the positions searched,
+/// against the points' noise ([`BackAnalysis::asymmetry_over_noise`]), has no back's symmetry
+/// line, and its analysis is refused ([`SurfaceError::LineUndetermined`]): each section is
+/// about as symmetric about any point (a surface of even curvature: a paraboloid, a cylinder),
+/// and the line would settle on the noise, 15-56 mm off at σ 5-10 mm (a paraboloid with 0.4 mm
+/// noise), its rotations of 1.5-3° at σ 0.3-0.6° where there is none. Such surfaces (two
+/// paraboloids, a cylinder) read 0.7 on average and 1.7 at most with their points' σ stated as
+/// they scatter, (scatter/σ)² times that with it misstated: the test relies on the σ given. The
+/// real backs read at least 5 (bent forward; standing 17).
+pub const LINE_UNDETERMINED: f64 = 3.0;
 
 /// A standing back's sagittal mid-height excess below minus this is read as upside down
 /// ([`BackAnalysis::looks_upside_down`]).
@@ -449,11 +454,10 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     loop {
         let (mut analysis, found) = measure(frames, &backs, axes, options, &wild)?;
         if found.is_empty() {
-            if let Some(sigma_mm) = analysis
-                .median_line_sigma_mm()
-                .filter(|&s| s > LINE_UNDETERMINED_MM)
-            {
-                return Err(SurfaceError::LineUndetermined { sigma_mm });
+            let asymmetry = analysis.asymmetry_over_noise;
+            // NaN: no asymmetry where the points state no noise.
+            if asymmetry.is_nan() || asymmetry < LINE_UNDETERMINED {
+                return Err(SurfaceError::LineUndetermined { asymmetry });
             }
             wild.sort_by_key(|w| (w.frame, w.point));
             analysis.wild = wild;
