@@ -4,7 +4,7 @@ use super::args::OutputArgs;
 use crate::io::analysis_file::read_report;
 use crate::io::atomic::write_all_atomic;
 use crate::report::back_report::{
-    analysis_note, comparison_notes, indices, plus_minus, posture_text, report_html,
+    analysis_note, comparison_notes, indices, plus_minus, points_text, posture_text, report_html,
 };
 use crate::report::console::Output;
 use crate::workflows::back::analyse_clouds;
@@ -147,10 +147,10 @@ pub fn exec(what: What) -> Result<()> {
             ])?;
             let a = &report.analysis;
             let mut text = format!(
-                "{}; {} frames, {} points, {} levels (surface measurements, not a diagnosis):\n",
+                "{}; {} frames, {}, {} levels (surface measurements, not a diagnosis):\n",
                 posture_text(a),
                 a.frames,
-                a.points,
+                points_text(a),
                 a.levels.len()
             );
             for (name, value, sigma, unit) in indices(a) {

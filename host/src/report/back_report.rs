@@ -57,13 +57,13 @@ pub fn report_html(report: &BackReport) -> Result<String> {
              measurements fall within ±σ).</p>\n";
     let _ = writeln!(
         html,
-        "<p>Posture: {}; {} frame(s), {} points on the back, dot spacing {:.1} mm, \
+        "<p>Posture: {}; {} frame(s), {}, dot spacing {:.1} mm, \
          calibration {}. Points' covariance: {}. Surface fit χ {:.2} (about 1 when the points' \
          σ hold); its misfit along the symmetry line {:.2} mm, detail between the dots, which \
          the line's and the rotation's σ include.</p>",
         escape(&posture_text(a)),
         a.frames,
-        a.points,
+        escape(&points_text(a)),
         a.spacing_mm,
         escape(
             report
@@ -209,6 +209,16 @@ pub fn posture_text(a: &BackAnalysis) -> String {
         Posture::ForwardBent => "bent forward (Adams position), the head toward",
     };
     format!("{posture} ({x:.2}, {y:.2}, {z:.2}) in the camera system")
+}
+
+/// The points the analysis measured the back by, and those apart from it it left out
+/// ([`BackAnalysis::points_apart`]; the planes larger than the back are noted apart).
+pub fn points_text(a: &BackAnalysis) -> String {
+    let on = format!("{} points on the back", a.points);
+    match a.points_apart {
+        0 => on,
+        n => format!("{on}, {n} apart from it left out (the arms, anything beside the subject)"),
+    }
 }
 
 /// What the reader must know of the analysis, if anything: a profile that reads as a back

@@ -734,9 +734,27 @@ fn analyse_back_leaves_out_a_wall_and_the_floor() {
         "{notes}"
     );
     assert!(alone["planes_left_out"].as_array().unwrap().is_empty());
-    // The back's points, every one and no other; its line where the model's is.
+    // The back's points, every one and no other; its line where the model's is. Every point
+    // is counted: on the back, in a plane, or apart (the arms, the floor's unmeshed rim).
     assert_eq!(analysed["points"], alone["points"]);
     line_holds(&analysed, &model);
+    let number = |v: &serde_json::Value, key: &str| v[key].as_u64().unwrap();
+    let apart = number(&alone, "points_apart");
+    assert_eq!(number(&alone, "points") + apart, back.len() as u64);
+    assert!(apart > 0, "the arms");
+    let scene_apart = number(&analysed, "points_apart");
+    assert_eq!(
+        number(&analysed, "points") + count(wall_out) + count(floor_out) + scene_apart,
+        scene.len() as u64
+    );
+    let rim = (wall.len() + floor.len()) as u64 - count(wall_out) - count(floor_out);
+    assert_eq!(scene_apart, apart + rim);
+    let said = format!(
+        "{} points on the back, {apart} apart from it left out",
+        alone["points"]
+    );
+    let report = std::fs::read_to_string(d.join("back.ply.out/report.html")).unwrap();
+    assert!(report.contains(&said), "{said}");
 }
 
 /// `model` as a cloud from elsewhere (`name`, its dots 20 mm apart, noise seeded by `seed`), and

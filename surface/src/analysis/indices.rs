@@ -145,6 +145,7 @@ impl Measured<'_> {
             irregularity: 0.0,
             wild: Vec::new(),
             planes_left_out: Vec::new(),
+            points_apart: 0,
             axes: Axes {
                 across: [1.0, 0.0, 0.0],
                 axis: [0.0, 1.0, 0.0],

@@ -235,6 +235,12 @@ pub struct BackAnalysis {
     /// largest smooth surface that is not a plane ([`PLANE_RMS_MM`]).
     #[serde(default)]
     pub planes_left_out: Vec<PlaneLeftOut>,
+    /// The points apart from the back, all frames, left out: in pieces of the mesh the back's
+    /// does not join that are not planes larger than it (the arms standing, anything beside
+    /// the subject, a wall in pieces smaller than the back). With the back's, wild points
+    /// included, and the planes', they are every point of the frames.
+    #[serde(default)]
+    pub points_apart: usize,
     /// The analysis frame.
     pub axes: Axes,
     /// Half-width of the symmetry window.
@@ -431,6 +437,10 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     let axes = axes(options, &first)?;
     let rot = axes.matrix();
     let planes_left_out: Vec<PlaneLeftOut> = found.iter().flat_map(|f| f.planes.clone()).collect();
+    let in_planes: usize = planes_left_out.iter().map(|p| p.points).sum();
+    let on_backs: usize = found.iter().map(|f| f.kept.len()).sum();
+    let in_frames: usize = frames.iter().map(|f| f.points.len()).sum();
+    let points_apart = in_frames - on_backs - in_planes;
     let backs: Vec<Back> = frames
         .iter()
         .zip(found)
@@ -462,6 +472,7 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
             wild.sort_by_key(|w| (w.frame, w.point));
             analysis.wild = wild;
             analysis.planes_left_out = planes_left_out;
+            analysis.points_apart = points_apart;
             return Ok(analysis);
         }
         wild.extend(found);
