@@ -81,6 +81,7 @@ fn surface_json(kept: &[KeptFrame], analysis: Result<(BackAnalysis, Vec<String>)
         Ok(serde_json::json!({
             "frames": a.frames,
             "points": a.points,
+            "points_apart": a.points_apart,
             "levels": a.levels.len(),
             "levels_left_out": a.levels_left_out.len(),
             "analysis_note": analysis_note(&a),

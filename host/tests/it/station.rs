@@ -749,4 +749,6 @@ fn a_wall_behind_the_back_is_named_on_the_surface() {
         assert!((120.0..160.0).contains(&beyond), "{wall}");
     }
     assert!(surface["levels"].as_u64().unwrap() >= 5, "{surface:#}");
+    // The points apart from the back counted: the back model's arms (the wall's are a plane's).
+    assert!(surface["points_apart"].as_u64().unwrap() > 0, "{surface:#}");
 }

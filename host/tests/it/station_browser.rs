@@ -205,6 +205,7 @@ fn the_page_shows_live_points_and_surface_and_captures_in_a_real_browser() {
         // Read fresh each time (each surface event replaces the list); WebDriver gives a
         // hidden element's text as empty, so the text found is displayed.
         wait_text(&c, "surface-notes", 60, |t| t.contains("a plane larger than the back left out")).await;
+        wait_text(&c, "surface-measures", 5, |t| t.contains("points apart from it, left out")).await;
         let png = c.find(Locator::Id("surface")).await.unwrap().screenshot().await.unwrap();
         std::fs::write(screenshots().join("surface-wall.png"), png).unwrap();
         c.close().await.unwrap();

@@ -98,7 +98,12 @@ function showSurface(s) {
   for (const [name, value, sigma, unit] of s.measures) {
     row(table, [name, `${fixed(value, 2)} ± ${fixed(sigma, 2)} ${unit}`]);
   }
-  row(table, ['frames, points', `${s.frames}, ${s.points} (frame ${s.label})`]);
+  row(table, ['frames', `${s.frames} (the latest ${s.label})`]);
+  row(table, ['points on the back', String(s.points)]);
+  if (s.points_apart > 0) {
+    row(table, ['points apart from it, left out (the arms, anything beside the subject)',
+      String(s.points_apart)]);
+  }
 }
 
 function showStatus(s) {
