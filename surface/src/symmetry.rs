@@ -116,8 +116,8 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 /// calibration's common share), over a quarter of the misfit's samples (the integral is
 /// smooth; each sample costs a solve with the fit's factor). Away from a back's symmetry line
 /// its trunk is far from symmetric: tens to hundreds. A section symmetric about every point
-/// (of even curvature) is asymmetric by its noise alone, and reads about 1 (NaN where the noise
-/// is nought).
+/// (of even curvature) is asymmetric by its noise alone, and reads about 1 (NaN with neither
+/// asymmetry nor noise).
 pub(crate) fn asymmetry(fit: &Fit, v: f64, x: f64, w: f64, across: &[Candidate]) -> Option<f64> {
     let mut misfits: Vec<f64> = across
         .iter()
