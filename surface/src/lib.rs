@@ -133,6 +133,9 @@ pub enum SurfaceError {
     LineUndetermined {
         /// [`analysis::BackAnalysis::asymmetry_over_noise`].
         asymmetry: f64,
+        /// The surface fit's χ ([`analysis::BackAnalysis::fit_chi`]): well under 1, the
+        /// points' σ is overstated, and their noise taken for more than it is.
+        chi: f64,
     },
     /// The options are unusable.
     BadOptions(String),
@@ -171,12 +174,13 @@ impl std::fmt::Display for SurfaceError {
                 f,
                 "frame {frame} has {points} points, a back needs at least {needed}"
             ),
-            SurfaceError::LineUndetermined { asymmetry } => write!(
+            SurfaceError::LineUndetermined { asymmetry, chi } => write!(
                 f,
                 "no back's symmetry line: the surface is about as symmetric about any position \
                  across it, its asymmetry {asymmetry:.1} times what the points' noise makes \
                  (under {}), as a surface of even curvature is: it lacks a back's features (the \
-                 spinous groove, the muscles beside it), or its points' σ is overstated",
+                 spinous groove, the muscles beside it), or its points' σ is overstated (they \
+                 scatter about the surface {chi:.2} times their σ, about 1 where it holds)",
                 analysis::LINE_UNDETERMINED
             ),
             SurfaceError::NoBack { frame, problem } => {

@@ -393,6 +393,29 @@ fn analyse_back_refuses_what_it_cannot_measure() {
         );
         assert!(!d.join("x").exists(), "{posture}: nothing written");
     }
+    // A back whose points' σ is overstated tenfold: its shape reads as noise, and the refusal
+    // says the points scatter about the surface far less than their σ (the noise and the detail
+    // between the dots: 0.22 here).
+    let model = BackModel::standing(Deformity::thoracic());
+    let back = noisy(&model.sample(&Lattice::beside_camera(20.0)), 5);
+    std::fs::write(d.join("back.ply"), plain(&back)).unwrap();
+    let args = ["analyse", "back", "--cloud", "back.ply", "--out", "x"];
+    let out = deltaz_in(d, &[&args[..], &["--sigma", "4"]].concat());
+    let err = String::from_utf8_lossy(&out.stderr);
+    let chi: f64 = err
+        .split("scatter about the surface ")
+        .nth(1)
+        .and_then(|r| r.split(" times their σ").next())
+        .and_then(|c| c.parse().ok())
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!(!out.status.success() && (0.05..0.3).contains(&chi), "{err}");
+    assert!(!d.join("x").exists(), "nothing written");
+    let out = deltaz_in(d, &[&args[..], &["--sigma", &SIGMA.to_string()]].concat());
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// Where the back's left side is out of view beside the spine (the measured surface ends

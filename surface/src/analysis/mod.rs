@@ -467,7 +467,8 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
             let asymmetry = analysis.asymmetry_over_noise;
             // NaN: no asymmetry where the points state no noise.
             if asymmetry.is_nan() || asymmetry < LINE_UNDETERMINED {
-                return Err(SurfaceError::LineUndetermined { asymmetry });
+                let chi = analysis.fit_chi;
+                return Err(SurfaceError::LineUndetermined { asymmetry, chi });
             }
             wild.sort_by_key(|w| (w.frame, w.point));
             analysis.wild = wild;
