@@ -258,9 +258,10 @@ pub struct BackAnalysis {
     /// median over the positions of the odd part's misfit over the symmetry window, over what
     /// the noise alone makes it). A back's trunk is asymmetric away from its spine: the ten
     /// real backs at 15 mm read 17 or more standing and 5 or more bent forward over five
-    /// lattice placements, the back model 120-210 at 20 mm. A surface without a back's features
-    /// is about as symmetric about one position as another, asymmetric by its noise alone:
-    /// about 1, and the analysis is refused under [`LINE_UNDETERMINED`].
+    /// lattice placements, the back model 84-282 (a body broad and flat, its groove 1 mm deep,
+    /// 17-28). A surface without a back's features is about as symmetric about one position as
+    /// another, asymmetric by its noise alone: about 1, and the analysis is refused under
+    /// [`LINE_UNDETERMINED`].
     #[serde(default)]
     pub asymmetry_over_noise: f64,
     /// The symmetry line, level by level (bottom to top).
@@ -385,10 +386,11 @@ impl BackAnalysis {
 /// line, and its analysis is refused ([`SurfaceError::LineUndetermined`]): each section is
 /// about as symmetric about any point (a surface of even curvature: a paraboloid, a cylinder),
 /// and the line would settle on the noise, 15-56 mm off at σ 5-10 mm (a paraboloid with 0.4 mm
-/// noise), its rotations of 1.5-3° at σ 0.3-0.6° where there is none. Such surfaces (two
-/// paraboloids, a cylinder) read 0.7 on average and 1.7 at most with their points' σ stated as
-/// they scatter, (scatter/σ)² times that with it misstated: the test relies on the σ given. The
-/// real backs read at least 5 (bent forward; standing 17).
+/// noise), its rotations of 1.5-3° at σ 0.3-0.6° where there is none. Such surfaces (three
+/// paraboloids, a cylinder) read 0.7 on average and 1.9 at most over 474 analyses 15 and 20 mm
+/// apart with their points' σ stated as they scatter, (scatter/σ)² times that with it
+/// misstated: the test relies on the σ given. The real backs read at least 5 (bent forward;
+/// standing 17).
 pub const LINE_UNDETERMINED: f64 = 3.0;
 
 /// A standing back's sagittal mid-height excess below minus this is read as upside down
