@@ -222,9 +222,10 @@ pub fn points_text(a: &BackAnalysis) -> String {
 }
 
 /// What the reader must know of the analysis, if anything: a profile that reads as a back
-/// seen upside down ([`BackAnalysis::looks_upside_down`]) and the levels where the symmetry
-/// line was not found ([`BackAnalysis::levels_left_out`]). The report, `deltaz analyse back`
-/// and the station say it alike.
+/// seen upside down ([`BackAnalysis::looks_upside_down`]), a line bent forward on faint
+/// features ([`BackAnalysis::line_faint`]) and the levels where the symmetry line was not found
+/// ([`BackAnalysis::levels_left_out`]). The report, `deltaz analyse back` and the station say
+/// it alike.
 pub fn analysis_note(a: &BackAnalysis) -> Option<String> {
     let mut notes = Vec::new();
     let upside_down = a.looks_upside_down().then(|| a.sagittal_mid_excess_deg());
@@ -236,6 +237,17 @@ pub fn analysis_note(a: &BackAnalysis) -> Option<String> {
              to the feet (a camera mounted upside down, a scanner writing y down), every profile \
              here is reversed and the rotation's sign turned: analyse it again with --vertical \
              0,-1,0."
+        ));
+    }
+    if a.line_faint() {
+        notes.push(format!(
+            "The symmetry line rests on faint features: the sections are only {:.1} times as \
+             asymmetric as their noise makes them (under {}; backs bent forward mostly read 13 \
+             or more), and bent forward the σ may then understate the errors several times (3-7 \
+             times on a model back with a 1 mm spinous groove). A capture standing, or another \
+             bent forward, tells whether the readings hold.",
+            a.asymmetry_over_noise,
+            deltaz_surface::analysis::FAINT
         ));
     }
     notes.extend(line_note(a));

@@ -124,7 +124,12 @@ fn correlations(readings: &[Reading], lattice: Lattice) -> [f64; 3] {
         over.fold(f64::INFINITY, f64::min)
     };
     let (upright, bent) = (least(false), least(true));
-    eprintln!("{lattice:?}, {} patients: fewest levels {fewest}, r(largest rotation, Cobb) = {rotation:.3}, r(scoliometer, Cobb) = {atr:.3}, r(largest asymmetry, Cobb) = {asymmetry:.3}; least asymmetry over the noise {upright:.1} upright, {bent:.1} bent forward", readings.len());
+    let faint: Vec<&str> = readings
+        .iter()
+        .filter(|p| p.bent.line_faint())
+        .map(|p| p.name.as_str())
+        .collect();
+    eprintln!("{lattice:?}, {} patients: fewest levels {fewest}, r(largest rotation, Cobb) = {rotation:.3}, r(scoliometer, Cobb) = {atr:.3}, r(largest asymmetry, Cobb) = {asymmetry:.3}; least asymmetry over the noise {upright:.1} upright, {bent:.1} bent forward (on faint features: {faint:?})", readings.len());
     assert!(fewest >= 14, "{lattice:?}: {fewest} levels");
     assert!(
         rotation >= 0.6,
