@@ -252,6 +252,8 @@ pub struct IndexErrors {
     /// The draws whose profile reads as a back seen upside down
     /// (`BackAnalysis::looks_upside_down`).
     pub upside_down: usize,
+    /// The draws bent forward whose line rests on faint features (`BackAnalysis::line_faint`).
+    pub faint: usize,
     /// Each standing draw's sagittal mid-height excess (°).
     pub mid_excess: Vec<f64>,
     /// Each draw's asymmetry over the noise (`BackAnalysis::asymmetry_over_noise`).
@@ -303,6 +305,7 @@ impl IndexErrors {
         self.left_out += a.levels_left_out.len();
         self.lines_lost += usize::from(a.line_mostly_lost());
         self.upside_down += usize::from(a.looks_upside_down());
+        self.faint += usize::from(a.line_faint());
         self.mid_excess.extend(a.sagittal_mid_excess_deg());
         self.asymmetry_over_noise.push(a.asymmetry_over_noise);
         self.wild += a.wild.len();
@@ -457,10 +460,11 @@ pub fn check_line_and_rotation(what: &str, e: &IndexErrors) {
 
 /// The accuracy bars (rotation ≤ 0.5° RMS, its error/σ within 0.8-1.25; symmetry line
 /// ≤ 2 mm RMS), the line's error/σ left to the caller, no draw's line mostly lost and no
-/// draw read as upside down.
+/// draw read as upside down or as resting on faint features.
 pub fn check_accuracy(what: &str, e: &IndexErrors) {
     assert_eq!(e.lines_lost, 0, "{what}: lines mostly lost");
     assert_eq!(e.upside_down, 0, "{what}: read as upside down");
+    assert_eq!(e.faint, 0, "{what}: read as resting on faint features");
     assert!(
         e.rotation.rms() <= 0.5,
         "{what}: rotation RMS {:.3}°",
