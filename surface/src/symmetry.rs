@@ -11,6 +11,7 @@
 //! equations, dp = −(JᵀΩJ)⁻¹ JᵀΩ (∂r/∂c) dc.
 
 use crate::fit::Fit;
+use crate::median;
 use crate::spline::D;
 use nalgebra::{DVector, Matrix2, Vector2};
 
@@ -119,12 +120,14 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 /// (of even curvature) is asymmetric by its noise alone, and reads about 1 (NaN with neither
 /// asymmetry nor noise).
 pub(crate) fn asymmetry(fit: &Fit, v: f64, x: f64, w: f64, across: &[Candidate]) -> Option<f64> {
-    let mut misfits: Vec<f64> = across
+    let misfits: Vec<f64> = across
         .iter()
         .filter_map(|c| odd_misfit(fit, v, c.0, w).map(|m| m.0))
         .collect();
-    misfits.sort_by(f64::total_cmp);
-    let typical = *misfits.get(misfits.len() / 2)?;
+    if misfits.is_empty() {
+        return None;
+    }
+    let typical = median(misfits);
     let half: Vec<(f64, f64)> = offsets(w, SAMPLES / 4).filter(|(t, _)| *t > 0.0).collect();
     let odd: Vec<DVector<f64>> = half
         .iter()

@@ -86,7 +86,8 @@ fn direction(text: &str) -> Result<[f64; 3], String> {
     match parts.as_deref() {
         Ok(&[x, y, z]) if [x, y, z].iter().all(|v| v.is_finite()) => {
             // Zero, or without a part across z (the hypot of nought is nought).
-            if x.hypot(y) <= 1e-9 * x.hypot(y).hypot(z) {
+            let across = x.hypot(y);
+            if across <= 1e-9 * across.hypot(z) {
                 Err(format!(
                     "{text:?} lies along the line of sight (z) or is no direction: it must lie \
                      across the image"

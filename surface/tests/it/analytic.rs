@@ -621,7 +621,7 @@ fn faint_features_are_flagged_bent_forward() {
             };
             assert_eq!(a.line_faint(), bent, "{}", a.asymmetry_over_noise);
             for l in &a.levels {
-                let truth = curve(l.y, 1.0).0.to_degrees();
+                let (_, truth) = exact(l.y, 1.0);
                 z += ((l.rotation_deg - truth) / l.rotation_sigma_deg).powi(2);
                 n += 1.0;
             }
