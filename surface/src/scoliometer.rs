@@ -20,6 +20,29 @@ pub(crate) struct Reading {
     pub gradient: DVector<f64>,
 }
 
+/// The height over `centre` of the lowest line of slope `m` above `section` ((a, n) samples).
+fn height_over(section: &[(f64, f64)], centre: f64, m: f64) -> f64 {
+    let over = section.iter().map(|&(a, n)| n - m * (a - centre));
+    over.fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// The slope of the line resting on `section` ((a, n) samples) across `centre`: of all lines
+/// above the section, the lowest over `centre` (its height there is convex in the slope:
+/// a ternary search within ±1.5, 56°). The simulator's true reading takes it on the exact
+/// surface.
+pub fn resting_slope(section: &[(f64, f64)], centre: f64) -> f64 {
+    let (mut lo, mut hi) = (-1.5_f64, 1.5_f64);
+    for _ in 0..100 {
+        let (m1, m2) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
+        if height_over(section, centre, m1) < height_over(section, centre, m2) {
+            hi = m2;
+        } else {
+            lo = m1;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
 /// The slope of the line resting on the section at level v over `window`, across the
 /// symmetry point `centre` (whose gradient is `centre_gradient`).
 pub(crate) fn resting_line(
@@ -37,21 +60,8 @@ pub(crate) fn resting_line(
         .chain((1..=right).map(|k| centre + k as f64 * STEP))
         .map(|a| fit.value(a, v, D::S).map(|n| (a, n)))
         .collect::<Option<_>>()?;
-    let height = |m: f64| {
-        let over = section.iter().map(|&(a, n)| n - m * (a - centre));
-        over.fold(f64::NEG_INFINITY, f64::max)
-    };
-    let (mut lo, mut hi) = (-1.5_f64, 1.5_f64);
-    for _ in 0..100 {
-        let (m1, m2) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
-        if height(m1) < height(m2) {
-            hi = m2;
-        } else {
-            lo = m1;
-        }
-    }
-    let m = 0.5 * (lo + hi);
-    let top = height(m);
+    let m = resting_slope(&section, centre);
+    let top = height_over(&section, centre, m);
     let contact = |side: &mut dyn Iterator<Item = &(f64, f64)>| {
         side.map(|&(a, n)| (n - m * (a - centre), a))
             .max_by(|p, q| p.0.total_cmp(&q.0))

@@ -325,13 +325,24 @@ impl SystemContent {
     }
 
     /// The system of a whole-system adjustment, in the camera system (the camera's pose is the
-    /// identity): the instrument's own frame.
+    /// identity): the instrument's own frame. Its warnings: the plate images `left_out_images`
+    /// and the adjustment's rays seen on one plate (determined through the centre, or left out
+    /// by the non-central model).
     pub fn from_adjustment(
         grid: PixelGrid<f64>,
         adjustment: &SystemAdjustment,
         noncentral: bool,
-        warnings: Warnings,
+        left_out_images: Vec<LeftOut>,
     ) -> Self {
+        let warnings = Warnings {
+            left_out_images,
+            single_plane_rays: if noncentral {
+                Vec::new()
+            } else {
+                adjustment.single_plane.clone()
+            },
+            left_out_rays: adjustment.left_out.clone(),
+        };
         let m = &adjustment.model;
         let rows = |c: &DMatrix<f64>| -> Vec<Vec<f64>> {
             c.row_iter().map(|r| r.iter().copied().collect()).collect()

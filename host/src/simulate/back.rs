@@ -19,6 +19,7 @@
 //! surface rotation atan(∂n/∂a) there, a skin angle from two surface points, the scoliometer's
 //! bitangent from the exact section.
 
+use deltaz_surface::scoliometer::resting_slope;
 use nalgebra::{Rotation3, Vector3};
 use std::f64::consts::FRAC_PI_2;
 
@@ -626,20 +627,7 @@ impl BackModel {
             .map(|k| window.0 + (window.1 - window.0) * k as f64 / count as f64)
             .map(|a| self.depth(axes, a, v).map(|n| (a, n)))
             .collect::<Option<_>>()?;
-        let height = |m: f64| {
-            let over = section.iter().map(|&(a, n)| n - m * (a - centre));
-            over.fold(f64::NEG_INFINITY, f64::max)
-        };
-        let (mut lo, mut hi) = (-1.5_f64, 1.5_f64);
-        for _ in 0..100 {
-            let (m1, m2) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
-            if height(m1) < height(m2) {
-                hi = m2;
-            } else {
-                lo = m1;
-            }
-        }
-        Some((0.5 * (lo + hi)).atan())
+        Some(resting_slope(&section, centre).atan())
     }
 }
 

@@ -114,16 +114,8 @@ pub fn calibrate_projector(
             image_sigma_px,
         })
         .map_err(|e| in_file(&format!("system adjustment: {e}")))?;
-        let warnings = Warnings {
-            left_out_images: resected.left_out,
-            single_plane_rays: if noncentral {
-                Vec::new()
-            } else {
-                adjustment.single_plane.clone()
-            },
-            left_out_rays: adjustment.left_out.clone(),
-        };
-        let content = SystemContent::from_adjustment(grid, &adjustment, noncentral, warnings);
+        let content =
+            SystemContent::from_adjustment(grid, &adjustment, noncentral, resected.left_out);
         let views = plates
             .into_iter()
             .zip(&adjustment.poses)

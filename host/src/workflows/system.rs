@@ -19,7 +19,7 @@ use super::observations::{identify_images, image_files, DotGrid, IdentifiedImage
 use super::plates::{plate_observations, resect_all};
 use crate::io::camera_file::CameraFile;
 use crate::io::control::ControlPoint;
-use crate::io::system_file::{SystemContent, SystemFile, SystemRig, Warnings};
+use crate::io::system_file::{SystemContent, SystemFile, SystemRig};
 use crate::report::residuals::{residuals, Residual};
 use crate::simulate::images::ImageSpec;
 use crate::simulate::{simulate, Scenario, Simulation};
@@ -79,16 +79,7 @@ pub fn adjust(
         image_sigma_px,
     })
     .map_err(|e| in_file(&format!("system adjustment: {e}")))?;
-    let warnings = Warnings {
-        left_out_images: resected.left_out,
-        single_plane_rays: if noncentral {
-            Vec::new()
-        } else {
-            adjustment.single_plane.clone()
-        },
-        left_out_rays: adjustment.left_out.clone(),
-    };
-    let content = SystemContent::from_adjustment(grid, &adjustment, noncentral, warnings);
+    let content = SystemContent::from_adjustment(grid, &adjustment, noncentral, resected.left_out);
     Ok(SystemCalibration {
         bundle,
         plates: observations,
