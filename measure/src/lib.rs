@@ -472,6 +472,24 @@ pub enum LoadedImage {
     Sixteen(image::ImageBuffer<image::Luma<u16>, Vec<u16>>),
 }
 
+impl LoadedImage {
+    /// (width, height) in pixels.
+    pub fn dimensions(&self) -> (u32, u32) {
+        match self {
+            LoadedImage::Eight(b) => b.dimensions(),
+            LoadedImage::Sixteen(b) => b.dimensions(),
+        }
+    }
+
+    /// Its targets measured ([`measure`]), one DN the 8-bit scale's.
+    pub fn measure(&self, params: &MeasureParams) -> Measurement {
+        match self {
+            LoadedImage::Eight(b) => measure(&view(b, 1.0), params),
+            LoadedImage::Sixteen(b) => measure(&view(b, 257.0), params),
+        }
+    }
+}
+
 /// Read a PNG, TIFF or JPEG image (format from its content), with clear errors for missing,
 /// empty, corrupt and truncated files.
 pub fn load_image(path: &Path) -> Result<LoadedImage> {
@@ -536,13 +554,6 @@ impl Measurement {
     }
 }
 
-fn measure_loaded(image: &LoadedImage, params: &MeasureParams) -> Measurement {
-    match image {
-        LoadedImage::Eight(b) => measure(&view(b, 1.0), params),
-        LoadedImage::Sixteen(b) => measure(&view(b, 257.0), params),
-    }
-}
-
 /// Read and measure one image file. An image without any accepted target is an error that
 /// gives the rejections per reason and, when the other polarity finds targets, says so.
 pub fn measure_file(path: &Path, params: &MeasureParams) -> Result<Measurement> {
@@ -555,10 +566,7 @@ pub fn measure_loaded_file(
     image: &LoadedImage,
     params: &MeasureParams,
 ) -> Result<Measurement> {
-    let size = match image {
-        LoadedImage::Eight(b) => b.dimensions(),
-        LoadedImage::Sixteen(b) => b.dimensions(),
-    };
+    let size = image.dimensions();
     if let Some(sensor) = params.sensor.filter(|&s| s != size) {
         bail!(
             "{}: the image size differs from the expected one: {} × {} pixels, the camera's \
@@ -570,14 +578,14 @@ pub fn measure_loaded_file(
             sensor.1
         );
     }
-    let measured = measure_loaded(image, params);
+    let measured = image.measure(params);
     if measured.targets.is_empty() {
         let mut other = *params;
         other.detect.polarity = match params.detect.polarity {
             detect::Polarity::Bright => detect::Polarity::Dark,
             detect::Polarity::Dark => detect::Polarity::Bright,
         };
-        let found = measure_loaded(image, &other).targets.len();
+        let found = image.measure(&other).targets.len();
         let hint = match (found, other.detect.polarity) {
             (0, _) => String::new(),
             (n, detect::Polarity::Dark) => format!("; {n} dark targets found with --dark"),

@@ -74,10 +74,7 @@ const THUMBNAIL_WIDTH: u32 = 400;
 /// `image` shrunk by an integer factor (the mean of each block) to at most
 /// [`THUMBNAIL_WIDTH`] pixels wide, as a JPEG.
 fn thumbnail(image: &LoadedImage) -> Thumbnail {
-    let (width, height) = match image {
-        LoadedImage::Eight(b) => b.dimensions(),
-        LoadedImage::Sixteen(b) => b.dimensions(),
-    };
+    let (width, height) = image.dimensions();
     let grey = |x: u32, y: u32| -> u32 {
         match image {
             LoadedImage::Eight(b) => u32::from(b.get_pixel(x, y)[0]),

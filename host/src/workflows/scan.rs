@@ -11,10 +11,7 @@ use crate::io::system_file::{SystemFile, SystemRig};
 use anyhow::{bail, Context, Result};
 use deltaz_calib::projector_calibration::DotObservation;
 use deltaz_calib::reconstruct::{reconstruct, ReconstructedPoint};
-use deltaz_measure::detect::GrayView;
-use deltaz_measure::{
-    host_identifier, load_image, measure, HostIdentifier, LoadedImage, MeasureParams,
-};
+use deltaz_measure::{host_identifier, load_image, HostIdentifier, LoadedImage, MeasureParams};
 use deltaz_shared::identify::Assignment;
 use deltaz_shared::rig::Method;
 use std::path::{Path, PathBuf};
@@ -226,10 +223,7 @@ pub fn measure_dots(
     label: &str,
     image: &LoadedImage,
 ) -> Result<Vec<(f64, f64)>> {
-    let (size, m) = match image {
-        LoadedImage::Eight(b) => (b.dimensions(), measure(&view(b, 1.0), params)),
-        LoadedImage::Sixteen(b) => (b.dimensions(), measure(&view(b, 257.0), params)),
-    };
+    let (size, m) = (image.dimensions(), image.measure(params));
     if size != sensor {
         bail!(
             "frame {label}: the image is {} × {} pixels, the calibration's sensor {} × {}",
@@ -240,18 +234,6 @@ pub fn measure_dots(
         );
     }
     Ok(m.targets.iter().map(|t| (t.col, t.row)).collect())
-}
-
-fn view<P: image::Primitive>(
-    b: &image::ImageBuffer<image::Luma<P>, Vec<P>>,
-    dn: f64,
-) -> GrayView<'_, P> {
-    GrayView {
-        width: b.width() as usize,
-        height: b.height() as usize,
-        pixels: b.as_raw(),
-        dn,
-    }
 }
 
 /// Scan image files: frame label = file stem.
