@@ -5,6 +5,7 @@
 //! the system cannot give is refused.
 
 use crate::cli::deltaz_in;
+use crate::system::cli::calibrate_system;
 use deltaz_host::io::system_file::{SystemFile, SystemFrame};
 use deltaz_host::simulate::{simulate, write_simulation, Scenario};
 use std::path::Path;
@@ -130,24 +131,8 @@ fn every_output_states_the_systems_frame() {
         (Some("the camera system"), "the camera system")
     );
 
-    let system = [
-        "calibrate",
-        "system",
-        "--init",
-        "camera_init.json",
-        "--camera-obs",
-        "camera_obs.csv",
-        "--camera-control",
-        "camera_control.csv",
-        "--control",
-        "plate_control.csv",
-        "--obs",
-        "plate_obs.csv",
-        "--out",
-        "system.json",
-        "--json",
-    ];
-    let json: serde_json::Value = serde_json::from_str(&ok(deltaz_in(d, &system))).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(calibrate_system(d, &["--json"]))).unwrap();
     assert_eq!(json["frame"], "the camera system");
     let (file, _) = SystemFile::load(&d.join("system.json")).unwrap();
     assert_eq!(file.content.frame, SystemFrame::Camera);

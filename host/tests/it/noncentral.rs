@@ -6,6 +6,7 @@
 //! a plate image held out), the camera as a prior (sequential) and its field images in the
 //! adjustment (joint).
 
+use crate::system::cli::calibrate_system;
 use deltaz_calib::system_adjustment::{Frame, SystemAdjustment};
 use deltaz_host::simulate::{simulate, write_simulation, Scenario, Simulation};
 use deltaz_host::workflows::accuracy::{
@@ -14,7 +15,6 @@ use deltaz_host::workflows::accuracy::{
 use deltaz_host::workflows::camera::camera_prior;
 use deltaz_shared::rig::Method;
 use nalgebra::Vector3;
-use std::process::Command;
 
 /// Adds (error / σ)² per camera axis of the held-out plate's points to `sum`; returns how many.
 fn tally(sim: &Simulation, adj: &SystemAdjustment, held_out: usize, sum: &mut Vector3<f64>) -> f64 {
@@ -77,28 +77,7 @@ fn calibrate_system_noncentral_runs() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
         write_simulation(d, &simulate(&scenario, seed)).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-            .args([
-                "calibrate",
-                "system",
-                "--init",
-                "camera_init.json",
-                "--camera-obs",
-                "camera_obs.csv",
-                "--camera-control",
-                "camera_control.csv",
-                "--control",
-                "plate_control.csv",
-                "--obs",
-                "plate_obs.csv",
-                "--out",
-                "system.json",
-                "--noncentral",
-                "--quiet",
-            ])
-            .current_dir(d)
-            .output()
-            .unwrap();
+        let out = calibrate_system(d, &["--noncentral", "--quiet"]);
         let name = &scenario.name;
         assert!(
             out.status.success(),

@@ -345,14 +345,16 @@ fn plate_frame_sigma_includes_the_transform() {
     }
 }
 
-mod cli {
+pub(crate) mod cli {
     use crate::cli::deltaz_in;
     use deltaz_host::io::system_file::SystemFile;
     use deltaz_host::simulate::{simulate, write_simulation, Scenario};
     use std::path::Path;
     use std::process::Output;
 
-    fn calibrate_system(dir: &Path, extra: &[&str]) -> Output {
+    /// `deltaz calibrate system` on a simulation's files in `dir`, writing system.json, with
+    /// `extra` arguments.
+    pub(crate) fn calibrate_system(dir: &Path, extra: &[&str]) -> Output {
         let mut args = vec![
             "calibrate",
             "system",
