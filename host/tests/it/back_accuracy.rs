@@ -9,7 +9,7 @@
 
 use crate::back_sim::{
     back_dots, check_accuracy, check_line_and_rotation, scanner_dots, scans, scans_of,
-    scattered_dots, Given, IndexErrors,
+    scattered_dots, swayed_thoracic, Given, IndexErrors,
 };
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_surface::{Options, Posture};
@@ -350,16 +350,7 @@ fn scoliometer_lumbar_and_severe() {
 /// rotation was 0.55°, 1.88).
 #[test]
 fn swayed_frames_combine() {
-    let base = BackModel::standing(Deformity::thoracic());
-    let sway = |r: [f64; 3], t: [f64; 3]| Pose {
-        rotation: Vector3::from(r).map(f64::to_radians),
-        translation: Vector3::from(t),
-    };
-    let models = [
-        base.clone(),
-        base.with_pose(sway([0.3, -1.0, 0.5], [3.0, -2.0, 4.0])),
-        base.with_pose(sway([-0.5, 0.8, -0.6], [-2.5, 3.0, -3.0])),
-    ];
+    let models = swayed_thoracic();
     let e = scans(&models, SPACING, DRAWS, 12000, &Options::standing());
     check("three swayed frames", &e);
     let one = standing(Deformity::thoracic(), Trunk::default(), 12000);

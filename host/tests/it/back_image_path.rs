@@ -9,10 +9,10 @@
 //! draw's calibration with the identification over the rig's working depth; its points carry
 //! the wire's centroid quantisation, which their covariance includes.
 
-use crate::back_sim::{check_line_and_rotation, IndexErrors};
+use crate::back_sim::{check_line_and_rotation, swayed_thoracic, IndexErrors};
 use deltaz_host::io::system_file::SystemFile;
 use deltaz_host::link::{centroid_step_px, Device};
-use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
+use deltaz_host::simulate::back::{BackModel, Deformity, Trunk};
 use deltaz_host::simulate::back_frames::render_backs;
 use deltaz_host::simulate::images::{true_rig, ImageSpec};
 use deltaz_host::simulate::{load_scenario, simulate, Scenario};
@@ -23,7 +23,6 @@ use deltaz_host::workflows::system::calibrate_simulation;
 use deltaz_shared::identify::DepthRange;
 use deltaz_shared::rig::Method;
 use deltaz_surface::{BackAnalysis, Options};
-use nalgebra::Vector3;
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::OnceLock;
@@ -286,16 +285,7 @@ fn image_path_scoliometer() {
 /// beyond their σ (the bars), and better than one frame.
 #[test]
 fn image_path_swayed_frames() {
-    let base = BackModel::standing(Deformity::thoracic());
-    let sway = |r: [f64; 3], t: [f64; 3]| Pose {
-        rotation: Vector3::from(r).map(f64::to_radians),
-        translation: Vector3::from(t),
-    };
-    let models = [
-        base.clone(),
-        base.with_pose(sway([0.3, -1.0, 0.5], [3.0, -2.0, 4.0])),
-        base.with_pose(sway([-0.5, 0.8, -0.6], [-2.5, 3.0, -3.0])),
-    ];
+    let models = swayed_thoracic();
     let e = monte_carlo(&models, &Options::standing(), 900);
     check("three swayed frames", &e);
     let bias = e.rotation.mean();

@@ -1,7 +1,7 @@
 //! The back model's dots as a scan gives them: each dot's own noise (σ mostly along the
 //! camera's line of sight) and the calibration's error common to all points of a scan.
 
-use deltaz_host::simulate::back::{Axes, BackModel, Lattice, LatticeDot};
+use deltaz_host::simulate::back::{Axes, BackModel, Deformity, Lattice, LatticeDot, Pose};
 use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint, SurfaceError};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use rand::SeedableRng;
@@ -35,6 +35,21 @@ impl Noise {
 
 /// The back's centre, which the common rotation turns about.
 const CENTRE: Vector3<f64> = Vector3::new(0.0, 0.0, -1500.0);
+
+/// Three frames of one standing back with a thoracic curve, swayed between them by a few mm
+/// and about a degree.
+pub fn swayed_thoracic() -> [BackModel; 3] {
+    let base = BackModel::standing(Deformity::thoracic());
+    let sway = |r: [f64; 3], t: [f64; 3]| Pose {
+        rotation: Vector3::from(r).map(f64::to_radians),
+        translation: Vector3::from(t),
+    };
+    [
+        base.clone(),
+        base.with_pose(sway([0.3, -1.0, 0.5], [3.0, -2.0, 4.0])),
+        base.with_pose(sway([-0.5, 0.8, -0.6], [-2.5, 3.0, -3.0])),
+    ]
+}
 
 /// A point's common-share sensitivity: a shift, and a rotation about y through the centre.
 fn sensitivity(p: &Vector3<f64>) -> DMatrix<f64> {
