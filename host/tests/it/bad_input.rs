@@ -3,8 +3,7 @@
 //! never panic or print a backtrace (RUST_BACKTRACE=1 is set), and leave its directory exactly
 //! as it was: no output file created or changed.
 
-use deltaz_host::io::camera_file::{write_camera, CameraFile};
-use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
+use crate::cli::{deltaz_ok, paper_rig, words};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -17,34 +16,10 @@ fn fixture() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_fixture");
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        let mut scenario = Scenario::paper();
-        scenario.noise.image_sigma_px = 0.1;
-        let sim = simulate(&scenario, 5);
-        write_simulation(&dir.join("sim"), &sim).unwrap();
+        let scenario = paper_rig(&dir, 0.1, 5, &words("--image-sigma-px 0.1"));
         let spec = deltaz_host::simulate::images::ImageSpec::default();
         // The images outside the fixture (not copied for every case).
         deltaz_host::simulate::images::write_images(&scenario, 5, &spec, &images_parent()).unwrap();
-        let (grid, inner) = true_camera(&scenario);
-        write_camera(&dir.join("camera.json"), &CameraFile::init(&grid, inner)).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-            .args(["calibrate", "projector", "--camera", "camera.json"])
-            .args([
-                "--control",
-                "sim/plate_control.csv",
-                "--obs",
-                "sim/plate_obs.csv",
-            ])
-            .args(["--out", "system.json", "--image-sigma-px", "0.1"])
-            .current_dir(&dir)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
         let plate = std::fs::read_to_string(dir.join("sim/plate_obs.csv")).unwrap();
         let dots: String = plate
             .lines()
@@ -58,22 +33,9 @@ fn fixture() -> &'static Path {
             .collect();
         std::fs::write(dir.join("dots.csv"), dots).unwrap();
         // A cloud of several images, as PLY and CSV.
-        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-            .args([
-                "reconstruct",
-                "--system",
-                "system.json",
-                "--obs",
-                "sim/plate_obs.csv",
-            ])
-            .args(["--out", "multi.ply", "--csv", "multi.csv"])
-            .current_dir(&dir)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
+        deltaz_ok(
+            &dir,
+            &words("reconstruct --system system.json --obs sim/plate_obs.csv --out multi.ply --csv multi.csv"),
         );
         dir
     })

@@ -4,11 +4,12 @@
 //! folder, a camera that is not there), each shown in its status while it keeps serving. The
 //! helpers here (the fixture, a station process, HTTP) serve the browser test too.
 
+use crate::cli::paper_rig;
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose};
 use deltaz_host::simulate::back_frames::render_back;
 use deltaz_host::simulate::images::{true_rig, ImageSpec};
 use deltaz_host::simulate::objects::{object_dots, object_frame, Object};
-use deltaz_host::simulate::{simulate, true_camera, write_simulation, Scenario};
+use deltaz_host::simulate::true_camera;
 use nalgebra::Vector3;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -32,34 +33,10 @@ pub fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
     FIXTURE.get_or_init(|| {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("station_fixture");
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        let mut scenario = Scenario::paper();
         // The image noise of the rendered frames' dots, so that the calibration's σ0 of the
         // dots (the points' own share) is theirs.
-        scenario.noise.image_sigma_px = 0.2;
-        let sim = simulate(&scenario, 3);
-        write_simulation(&dir.join("sim"), &sim).unwrap();
-        let (grid, inner) = true_camera(&scenario);
-        let camera = deltaz_host::io::camera_file::CameraFile::init(&grid, inner);
-        deltaz_host::io::camera_file::write_camera(&dir.join("camera.json"), &camera).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_deltaz"))
-            .args(["calibrate", "projector", "--camera", "camera.json"])
-            .args([
-                "--control",
-                "sim/plate_control.csv",
-                "--obs",
-                "sim/plate_obs.csv",
-            ])
-            .args(["--out", "system.json", "--quiet"])
-            .current_dir(&dir)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let scenario = paper_rig(&dir, 0.2, 3, &["--quiet"]);
+        let (grid, _) = true_camera(&scenario);
         let rig = true_rig(&scenario);
         let render = |folder: &str, objects: &[Object]| {
             std::fs::create_dir_all(dir.join(folder)).unwrap();
