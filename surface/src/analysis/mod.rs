@@ -397,7 +397,9 @@ impl BackAnalysis {
 /// paraboloids, a cylinder) read 0.7 on average and 1.9 at most over 474 analyses 15 and 20 mm
 /// apart with their points' σ stated as they scatter, (scatter/σ)² times that with it
 /// misstated: the test relies on the σ given. The real backs read at least 5 (bent forward;
-/// standing 17).
+/// standing 17). It is the whole analysis' test, not each level's: a level past a back's
+/// features (its groove faded out) may read under it, and is kept, its σ holding through the
+/// line chained to the levels about it (several times the grooved levels').
 pub const LINE_UNDETERMINED: f64 = 3.0;
 
 /// Bent forward, a symmetry line whose sections are asymmetric less than this many times their
