@@ -1,5 +1,5 @@
 //! Blob detection: a tiled background model, an adaptive threshold, the components above it
-//! ([`crate::components`]) and shape tests.
+//! ([`crate::components()`]) and shape tests.
 //!
 //! Each component yields its area, bounding box, second moments and the intensity-weighted
 //! centroid (the paper's "gravity centre", section 6.2.1) with weights w = I − background over the

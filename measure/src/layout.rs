@@ -12,7 +12,7 @@
 //!    collinear candidates) is dropped. It scores the distinct targets that land on a candidate
 //!    (within 2 tolerances), then the other control points of that plane that land on a blob.
 //! 3. Every assignment with the most distinct targets explained gives a start pose by space
-//!    resection (planar homography decomposition, [`crate::resection::resect`]) from the
+//!    resection (planar homography decomposition, [`deltaz_calib::resection::resect`]) from the
 //!    plane's matched points and the four candidates; every control point is projected
 //!    through the camera and matched to the one blob within the tolerance (none if two are);
 //!    the pose is resected again from those matches (Gauss-Newton from the previous pose,

@@ -9,7 +9,7 @@
 //! ([`fit`]), and [`analyse`] measures it: the symmetry line ([`symmetry`]), the surface
 //! rotation along it, its lateral deviation, trunk imbalance and inclination, skin angles,
 //! the sagittal profile (kyphosis, lordosis), the virtual scoliometer on a forward-bent scan
-//! ([`scoliometer`]) and a mirror-asymmetry map ([`BackAnalysis`]). [`compare`] tells which
+//! ([`scoliometer`]) and a mirror-asymmetry map ([`BackAnalysis`]). [`compare()`] tells which
 //! changes between two analyses exceed measurement noise.
 //!
 //! Conventions: mm and degrees in the output; the camera system x right, y up, z toward the

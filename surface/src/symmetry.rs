@@ -112,7 +112,7 @@ fn odd_misfit(fit: &Fit, v: f64, x: f64, w: f64) -> Option<(f64, f64)> {
 
 /// The section's asymmetry about the positions `across` (the coarse search's), against the
 /// points' noise: the median of the odd part's misfit ([`odd_misfit`]) there, over the misfit
-/// the fit's noise alone makes at x, E[e] = Σ w_t var(d_t − b t) / Σ w_t, d_t = s(x + t) −
+/// the fit's noise alone makes at x, `E[e] = Σ w_t var(d_t − b t) / Σ w_t`, d_t = s(x + t) −
 /// s(x − t) and b their linear term (the fit's covariance: the points' own and the
 /// calibration's common share), over a quarter of the misfit's samples (the integral is
 /// smooth; each sample costs a solve with the fit's factor). Away from a back's symmetry line

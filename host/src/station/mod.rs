@@ -9,7 +9,7 @@
 //! | [`calibration_check`] | the calibration's facts and the plane check with its verdict |
 //! | [`state`] | what the threads and the server share |
 //! | [`server`] | the HTTP server: the page, its events and the JSON API |
-//! | [`bench`] | the end-to-end frame rate and latency (frame read → event at the page) |
+//! | [`bench`](mod@bench) | the end-to-end frame rate and latency (frame read → event at the page) |
 //!
 //! Threads: a reader (source, measurement), the device's (identify, intersect, publish), the
 //! surface's (analysis) and the server's runtime (two workers). Each failure of a source, the

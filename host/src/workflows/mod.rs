@@ -3,7 +3,7 @@
 //! [`projector`]), both → system ([`system`]), images → observations ([`observations`]), dots →
 //! points ([`reconstruct`], [`scan`], [`stream`] through a [`device`]), clouds → a back's
 //! analysis ([`back`], in memory from its images [`back_scan`]), and the experiments on
-//! simulated rigs ([`accuracy`], [`bench`], [`bench_reconstruct`], [`demo`]).
+//! simulated rigs ([`accuracy`], [`bench`](mod@bench), [`bench_reconstruct`], [`demo`]).
 
 pub mod accuracy;
 pub mod back;

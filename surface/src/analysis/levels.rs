@@ -519,7 +519,7 @@ fn cost(c: &Candidate) -> f64 {
 
 /// One pass of the chain's dynamic programming over the levels in the order given.
 struct Pass {
-    /// total[k][i]: the least cost of a path whose last kept level is k at candidate i.
+    /// `total[k][i]`: the least cost of a path whose last kept level is k at candidate i.
     total: Vec<Vec<f64>>,
     /// The kept level and candidate before it.
     from: Vec<Vec<Option<(usize, usize)>>>,

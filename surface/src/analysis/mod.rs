@@ -152,7 +152,7 @@ pub struct Level {
     pub symmetry_x_rival: Option<f64>,
 }
 
-/// A map over the analysis plane: `values[j * a.len() + i]` at (a[i], v[j]) (mm).
+/// A map over the analysis plane: `values[j * a.len() + i]` at `(a[i], v[j])` (mm).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Map {
     /// Across.
@@ -280,7 +280,7 @@ pub struct BackAnalysis {
     /// level's with what choosing it among levels within the noise of it adds (the analysis'
     /// `selection`), and describes its magnitude: where levels of opposite sign are within the
     /// noise of each other, which one is the largest, and so the sign, is chance
-    /// ([`crate::compare`] compares magnitudes).
+    /// ([`crate::compare()`] compares magnitudes).
     pub rotation_max_deg: f64,
     /// Its σ.
     pub rotation_max_deg_sigma: f64,
