@@ -87,6 +87,24 @@ fn sampled(z: impl Fn(f64, f64) -> f64, seed: u64, noise: f64, spacing: f64) -> 
     }
 }
 
+/// The RMS of error/σ over the values pushed.
+#[derive(Default)]
+struct ErrorOverSigma {
+    squares: f64,
+    count: f64,
+}
+
+impl ErrorOverSigma {
+    fn push(&mut self, error: f64, sigma: f64) {
+        self.squares += (error / sigma).powi(2);
+        self.count += 1.0;
+    }
+
+    fn rms(&self) -> f64 {
+        (self.squares / self.count).sqrt()
+    }
+}
+
 fn exact(y: f64, scale: f64) -> (f64, f64) {
     let (theta, _) = curve(y, scale);
     (section(0.0, y, scale).0, theta.to_degrees())
@@ -94,15 +112,14 @@ fn exact(y: f64, scale: f64) -> (f64, f64) {
 
 #[test]
 fn symmetry_line_and_rotation_of_a_rotated_section() {
-    let (mut zx, mut zr, mut n) = (0.0, 0.0, 0.0);
+    let (mut zx, mut zr) = (ErrorOverSigma::default(), ErrorOverSigma::default());
     for seed in 0..10 {
         let a = analyse(&[scan(1.0, seed)], &Options::standing()).unwrap();
         assert!(a.levels.len() >= 15, "{} levels", a.levels.len());
         for l in &a.levels {
             let (x, r) = exact(l.y, 1.0);
-            zx += ((l.symmetry_x - x) / l.symmetry_x_sigma).powi(2);
-            zr += ((l.rotation_deg - r) / l.rotation_sigma_deg).powi(2);
-            n += 1.0;
+            zx.push(l.symmetry_x - x, l.symmetry_x_sigma);
+            zr.push(l.rotation_deg - r, l.rotation_sigma_deg);
         }
         let peak = a
             .levels
@@ -111,7 +128,7 @@ fn symmetry_line_and_rotation_of_a_rotated_section() {
             .fold(0.0, f64::max);
         assert!((a.rotation_max_deg - peak).abs() < 4.0 * a.rotation_max_deg_sigma + 0.3);
     }
-    let (zx, zr) = ((zx / n).sqrt(), (zr / n).sqrt());
+    let (zx, zr) = (zx.rms(), zr.rms());
     assert!(
         zx < 1.6 && zr < 1.6,
         "RMS error/σ: symmetry line {zx:.2}, rotation {zr:.2}"
@@ -613,7 +630,7 @@ fn faint_features_are_flagged_bent_forward() {
     let faint = |x: f64, y: f64| z_at(x, |s| grooved(s, y, 1.0, 1.0));
     for options in [Options::standing(), Options::forward_bent()] {
         let bent = options.posture == deltaz_surface::Posture::ForwardBent;
-        let (mut z, mut n) = (0.0, 0.0);
+        let mut z = ErrorOverSigma::default();
         for seed in 50..60 {
             // A draw may be refused (its asymmetry under 3).
             let Ok(a) = analyse(&[sampled(faint, seed, 0.3, 20.0)], &options) else {
@@ -622,11 +639,10 @@ fn faint_features_are_flagged_bent_forward() {
             assert_eq!(a.line_faint(), bent, "{}", a.asymmetry_over_noise);
             for l in &a.levels {
                 let (_, truth) = exact(l.y, 1.0);
-                z += ((l.rotation_deg - truth) / l.rotation_sigma_deg).powi(2);
-                n += 1.0;
+                z.push(l.rotation_deg - truth, l.rotation_sigma_deg);
             }
         }
-        let z = (z / n).sqrt();
+        let z = z.rms();
         eprintln!("a 1 mm groove, bent forward {bent}: rotation's RMS error/σ {z:.2}");
         assert!(if bent { z > 2.0 } else { z < 1.3 }, "{z}");
         let usual = analyse(&[scan(1.0, 3)], &options).unwrap();
@@ -645,9 +661,10 @@ fn levels_past_a_fading_groove_keep_honest_sigma() {
     let groove = |y: f64| 5.0 * ((200.0 - y) / 100.0).clamp(0.0, 1.0);
     let fading = move |x: f64, y: f64| z_at(x, |s| grooved(s, y, 1.0, groove(y)));
     for options in [Options::standing(), Options::forward_bent()] {
-        // (Σ error/σ)² of the line and the rotation, count, and the rotation's σ: past the
-        // groove; and the grooved levels' σ.
-        let (mut zx, mut zr, mut n, mut past, mut grooved) = (0.0, 0.0, 0.0, vec![], vec![]);
+        // Error/σ of the line and the rotation and the rotation's σ past the groove; the
+        // grooved levels' σ.
+        let (mut zx, mut zr) = (ErrorOverSigma::default(), ErrorOverSigma::default());
+        let (mut past, mut grooved) = (vec![], vec![]);
         for seed in 0..20 {
             let a = analyse(&[sampled(fading, seed, 0.3, 15.0)], &options).unwrap();
             for l in &a.levels {
@@ -655,14 +672,13 @@ fn levels_past_a_fading_groove_keep_honest_sigma() {
                     grooved.push(l.rotation_sigma_deg);
                 } else if l.y >= 195.0 {
                     let (x, r) = exact(l.y, 1.0);
-                    zx += ((l.symmetry_x - x) / l.symmetry_x_sigma).powi(2);
-                    zr += ((l.rotation_deg - r) / l.rotation_sigma_deg).powi(2);
-                    n += 1.0;
+                    zx.push(l.symmetry_x - x, l.symmetry_x_sigma);
+                    zr.push(l.rotation_deg - r, l.rotation_sigma_deg);
                     past.push(l.rotation_sigma_deg);
                 }
             }
         }
-        let (zx, zr) = ((zx / n).sqrt(), (zr / n).sqrt());
+        let (n, zx, zr) = (zx.count, zx.rms(), zr.rms());
         let (past, grooved) = (median(past), median(grooved));
         eprintln!(
             "{:?}, past a fading groove ({n} levels): RMS error/σ line {zx:.2}, rotation {zr:.2}; \
