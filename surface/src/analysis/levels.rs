@@ -44,6 +44,8 @@ impl Searched {
 /// The fitted surface with where it was measured.
 pub(super) struct Measured<'a> {
     pub(super) fit: &'a Fit,
+    /// The fit of one frame's points, whose misfit gives the sampling terms.
+    pub(super) sampled: &'a Fit,
     pub(super) support: &'a Support,
     pub(super) posture: Posture,
 }
@@ -104,9 +106,15 @@ impl Var {
 /// misfit / window (rad), its depth [`K_DEPTH`] × misfit, independent from level to level;
 /// every value measured at the symmetry point carries the line's term through its derivative
 /// along the section.
+/// Several frames share one frame's terms, from the misfit of frame 0's points alone (`sampled`):
+/// the frames of a scan sample the back nearly where the first does (a subject sways by a few mm,
+/// a fraction of a dot cell), so the detail between the dots moves each alike, and their errors
+/// do not average out (three swayed frames err 0.58 mm where one errs 0.61; with the combined
+/// fit's misfit, on its finer grid, the line's error/σ was 1.26). Where the frames fall far
+/// apart on the cell the terms overstate.
 /// Calibrated by Monte Carlo (the host's back_accuracy and back_image_path tests: nine backs at
-/// 20 mm spacing, one frame and three swayed): the symmetry line's RMS of error/σ lies within
-/// 0.86-1.2 on each (1.05-1.45 without). The noiseless error is 0.2-0.5 mm RMS at 20 mm,
+/// 20 mm spacing, one frame and three swayed, each draw placed anew on the lattice): the
+/// symmetry line's RMS of error/σ lies within 0.86-1.2 on each (1.05-1.45 without). The noiseless error is 0.2-0.5 mm RMS at 20 mm,
 /// 0.05-0.13 at 15 and 0.02-0.04 at 10, where the misfit is 0.8-0.95, 0.4-0.5 and 0.16-0.21 mm.
 #[derive(Clone, Copy)]
 pub(super) struct Sampling {
@@ -239,11 +247,10 @@ impl Measured<'_> {
         })
     }
 
-    /// The surface's misfit within `window` of the symmetry line `line` ((v, a) per level;
-    /// half a spacing beyond its ends), on one frame's grid: a grid finer than the dots
-    /// (several frames) follows each frame's samples closer, which leaves its misfit smaller by
-    /// about the square of the steps' ratio, not the detail between the samples (frames swayed
-    /// by a few mm sample the back nearly alike).
+    /// The misfit of one frame's surface (`sampled`) within `window` of the symmetry line
+    /// `line` ((v, a) per level; half a spacing beyond its ends), as on a grid one spacing
+    /// apart (a coarser grid, where the coefficients' count bounds it, scaled by the square of
+    /// the steps' ratio).
     fn misfit_along(&self, line: &[(f64, f64)], window: f64, spacing: f64) -> f64 {
         let x = |v: f64| {
             let k = line.partition_point(|l| l.0 < v).clamp(1, line.len() - 1);
@@ -255,10 +262,10 @@ impl Measured<'_> {
             line[0].0 - spacing / 2.0,
             line[line.len() - 1].0 + spacing / 2.0,
         );
-        let on_one_frame = (spacing / self.fit.grid.step).powi(2);
-        on_one_frame
+        let on_a_spacing = (spacing / self.sampled.grid.step).powi(2);
+        on_a_spacing
             * self
-                .fit
+                .sampled
                 .misfit(|a, v| (lo..=hi).contains(&v) && (a - x(v)).abs() < window)
     }
 

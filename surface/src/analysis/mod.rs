@@ -250,8 +250,8 @@ pub struct BackAnalysis {
     /// The normalised residuals' RMS of the surface fit (about 1 when the points' σ hold).
     pub fit_chi: f64,
     /// The surface's misfit along the symmetry line ([`crate::fit::Fit::misfit`] within the
-    /// symmetry window): detail between the dots, which the sampling terms of the symmetry
-    /// line's and the rotation's σ scale with.
+    /// symmetry window, of the first frame's points alone): detail between the dots, which the
+    /// sampling terms of the symmetry line's and the rotation's σ scale with.
     pub misfit_mm: f64,
     /// What makes the symmetry line a back's: how far from mirror symmetric the sections are
     /// about the positions searched, against the points' noise (at the median level, the
@@ -536,18 +536,34 @@ fn measure(
         [hi[0] + margin, hi[1] + margin],
     );
     let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
-    let step =
-        (spacing / (frames.len() as f64).sqrt()).max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1);
-    let grid = Grid::covering(lo, hi, step);
-    let smoothing = options.smoothing * spacing;
-    let lambda = (smoothing / step).powi(4) * (step / spacing).powi(2);
-    let surface = fit(
-        &samples,
-        frames.len(),
-        grid,
-        lambda,
-        frames[0].common.covariance(),
-    )?;
+    let step_of = |frames: usize| {
+        (spacing / (frames as f64).sqrt()).max((area / MAX_COEFFICIENTS as f64).sqrt() * 1.1)
+    };
+    let step = step_of(frames.len());
+    // Where frame 0 measured the surface: the other frames are registered on it there.
+    let mut first_measured = Support::new(lo, hi, step / 4.0);
+    for t in &backs[0].surface {
+        first_measured.fill(t.map(|i| backs[0].positions[i]));
+    }
+    let fit_on = |samples: &[Sample], count: usize| {
+        let step = step_of(count);
+        let smoothing = options.smoothing * spacing;
+        let lambda = (smoothing / step).powi(4) * (step / spacing).powi(2);
+        let grid = Grid::covering(lo, hi, step);
+        let common = frames[0].common.covariance();
+        fit(samples, count, grid, lambda, common, &first_measured)
+    };
+    let surface = fit_on(&samples, frames.len())?;
+    // The sampling terms are one frame's: the frames of a scan sample the back where the
+    // first does (a subject sways by a few mm, a fraction of a dot cell), and the detail
+    // between the dots moves each alike (levels.rs' `Sampling`).
+    let one_frame = match frames.len() {
+        1 => None,
+        _ => {
+            let first: Vec<Sample> = samples.iter().filter(|s| s.frame == 0).cloned().collect();
+            Some(fit_on(&first, 1)?)
+        }
+    };
     let mut support = Support::new(lo, hi, step / 4.0);
     for (k, b) in backs.iter().enumerate() {
         let pose = surface.poses[k];
@@ -575,6 +591,7 @@ fn measure(
         .collect();
     let measured = Measured {
         fit: &surface,
+        sampled: one_frame.as_ref().unwrap_or(&surface),
         support: &support,
         posture: options.posture,
     };
