@@ -498,16 +498,46 @@ pub fn check_accuracy(what: &str, e: &IndexErrors) {
 }
 
 /// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), each
-/// with its own noise and common error, analysed with `options`.
+/// [`placed`] anew on the lattice `spacing` apart, with its own noise and common error, its
+/// points `given` as it says, analysed with `options`.
 pub fn scans(
     models: &[BackModel],
     spacing: f64,
+    given: Given,
     draws: u64,
     seed: u64,
     options: &Options,
 ) -> IndexErrors {
-    let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
-    scans_of(models, &dots, Given::WithRays, draws, seed, options)
+    let mut errors = IndexErrors::default();
+    for k in 0..draws {
+        let models = placed(models, spacing, seed + k);
+        let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
+        let a = scanned(&dots, given, &Noise::issue(), seed + k, options)
+            .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
+        errors.add(&models[0], &a);
+    }
+    errors
+}
+
+/// `models` shifted together across the camera by a draw (`seed`) uniform over a dot cell
+/// `spacing` wide: where the lattice falls on the subject.
+pub fn placed(models: &[BackModel], spacing: f64, seed: u64) -> Vec<BackModel> {
+    let mut r = rng(seed ^ 0x9e37_79b9);
+    let cell = rand_distr::Uniform::new(-0.5 * spacing, 0.5 * spacing).unwrap();
+    shifted(models, [cell.sample(&mut r), cell.sample(&mut r)])
+}
+
+/// `models` shifted together across the camera by `[x, y]` (mm).
+pub fn shifted(models: &[BackModel], [x, y]: [f64; 2]) -> Vec<BackModel> {
+    models
+        .iter()
+        .map(|m| {
+            m.with_pose(Pose {
+                translation: m.pose.translation + Vector3::new(x, y, 0.0),
+                ..m.pose
+            })
+        })
+        .collect()
 }
 
 /// How a draw's points reach the analysis.
