@@ -5,11 +5,9 @@
 //! stays), and should lie on the surface: r = q_n − s(q_a, q_v). The coefficients of s and the
 //! poses are adjusted together by Gauss-Newton, each residual weighted by the inverse of its
 //! variance jpᵀ C jp (jp = ∂r/∂p: a point's error across the surface counts, along it not),
-//! with a thin-plate roughness penalty λ cᵀ P c. First frame 0 alone, then each other frame's
-//! pose on it, by its points where frame 0 measured the surface (beyond, the surface is the
-//! penalty's extrapolation, and a trunk, nearly a cylinder, slid along it: three frames swayed
-//! by a degree and a few mm, one registered 22° and 470 mm off at 2 of 30 placements of the
-//! lattice on the back), then all together.
+//! with a thin-plate roughness penalty λ cᵀ P c. Several frames: frame 0 alone is fitted first
+//! on one frame's grid, each other frame's pose registered on it ([`Fit::register`]), then all
+//! are fitted together on the finer grid from those poses.
 //!
 //! Covariance: x̂ = N⁻¹ Σ w_i j_i e_i to first order (N the penalised normal matrix, e_i the
 //! point's error across the surface: its own, variance 1/w_i, plus u_iᵀ δ of the calibration's
@@ -45,7 +43,7 @@ pub(crate) struct Pose {
 }
 
 impl Pose {
-    fn identity() -> Self {
+    pub(crate) fn identity() -> Self {
         Self {
             r: Rotation3::identity(),
             t: Vector3::zeros(),
@@ -210,16 +208,15 @@ impl State<'_> {
     }
 }
 
-/// Fits the surface on `grid` to the samples of `frames` frames, registering frames 1.. onto
-/// frame 0 where it `measured` the surface; `lambda` weighs the roughness penalty relative to
-/// a sample of weight 1, `common` is Σ_c of the calibration's common share.
+/// Fits the surface on `grid` to the samples, frame k's moved by `poses[k]` (frame 0's the
+/// identity) and adjusted with it; `lambda` weighs the roughness penalty relative to a sample
+/// of weight 1, `common` is Σ_c of the calibration's common share.
 pub(crate) fn fit(
     samples: &[Sample],
-    frames: usize,
+    poses: Vec<Pose>,
     grid: Grid,
     lambda: f64,
     common: DMatrix<f64>,
-    measured: &Support,
 ) -> Result<Fit, SurfaceError> {
     let n = samples.len() as f64;
     let first: Vec<Vector3<f64>> = samples
@@ -233,39 +230,27 @@ pub(crate) fn fit(
         .map(|s| 1.0 / s.cov[(2, 2)].max(1e-12))
         .sum::<f64>()
         / n;
+    let all: Vec<usize> = (0..poses.len()).collect();
     let mut state = State {
         grid,
         coeffs: vec![0.0; grid.len()],
-        poses: vec![Pose::identity(); frames],
         centre,
         samples,
         penalty: grid.penalty(),
         lambda: lambda * mean_weight,
-        registering_on: Some(measured),
+        registering_on: None,
+        poses,
     };
     let surface = Unknowns {
         coeffs: true,
         poses: vec![],
     };
     for _ in 0..3 {
-        state.step(&surface, &[0])?;
+        state.step(&surface, &all)?;
     }
-    for f in 1..frames {
-        let pose = Unknowns {
-            coeffs: false,
-            poses: vec![f],
-        };
-        for _ in 0..20 {
-            if state.step(&pose, &[f])? < 1e-7 {
-                break;
-            }
-        }
-    }
-    state.registering_on = None;
-    let all: Vec<usize> = (0..frames).collect();
     let joint = Unknowns {
         coeffs: true,
-        poses: (1..frames).collect(),
+        poses: all[1..].to_vec(),
     };
     for _ in 0..3 {
         state.step(&joint, &all)?;
@@ -285,6 +270,40 @@ pub(crate) fn fit(
 }
 
 impl Fit {
+    /// The pose of `frame` onto this surface (frame 0's alone) by its samples among `samples`
+    /// where frame 0 `measured` the surface: beyond, the surface is the penalty's
+    /// extrapolation, and a trunk, nearly a cylinder, slid along it (three frames swayed by a
+    /// degree and a few mm, one registered 22° and 470 mm off at 2 of 30 placements of the
+    /// lattice on the back).
+    pub fn register(
+        &self,
+        samples: &[Sample],
+        frame: usize,
+        measured: &Support,
+    ) -> Result<Pose, SurfaceError> {
+        let mut state = State {
+            grid: self.grid,
+            coeffs: self.coeffs.clone(),
+            poses: vec![Pose::identity(); frame + 1],
+            centre: self.centre,
+            samples,
+            // No penalty: the coefficients stay.
+            penalty: CooMatrix::new(0, 0),
+            lambda: 0.0,
+            registering_on: Some(measured),
+        };
+        let pose = Unknowns {
+            coeffs: false,
+            poses: vec![frame],
+        };
+        for _ in 0..20 {
+            if state.step(&pose, &[frame])? < 1e-7 {
+                break;
+            }
+        }
+        Ok(state.poses[frame])
+    }
+
     /// The number of unknowns (coefficients, then 6 per frame after the first).
     pub fn unknowns(&self) -> usize {
         self.grid.len() + 6 * (self.poses.len() - 1)

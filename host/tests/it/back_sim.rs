@@ -37,9 +37,13 @@ impl Noise {
 const CENTRE: Vector3<f64> = Vector3::new(0.0, 0.0, -1500.0);
 
 /// Three frames of one standing back with a thoracic curve, swayed between them by a few mm
-/// and about a degree.
+/// and about a degree ([`swayed`]).
 pub fn swayed_thoracic() -> [BackModel; 3] {
-    let base = BackModel::standing(Deformity::thoracic());
+    swayed(BackModel::standing(Deformity::thoracic()))
+}
+
+/// Three frames of `base`, swayed between them by a few mm and about a degree.
+pub fn swayed(base: BackModel) -> [BackModel; 3] {
     let sway = |r: [f64; 3], t: [f64; 3]| Pose {
         rotation: Vector3::from(r).map(f64::to_radians),
         translation: Vector3::from(t),
