@@ -56,18 +56,19 @@ fn check(what: &str, e: &IndexErrors) {
 }
 
 fn standing(deformity: Deformity, trunk: Trunk, seed: u64) -> IndexErrors {
-    let model = BackModel {
-        trunk,
-        ..BackModel::standing(deformity)
-    };
-    scans(
-        &[model],
-        SPACING,
-        Given::WithRays,
-        DRAWS,
+    standing_scans(
+        BackModel {
+            trunk,
+            ..BackModel::standing(deformity)
+        },
         seed,
-        &Options::standing(),
     )
+}
+
+/// The scans of `model` standing, its dots 20 mm apart, from `seed`.
+fn standing_scans(model: BackModel, seed: u64) -> IndexErrors {
+    let options = Options::standing();
+    scans(&[model], SPACING, Given::WithRays, DRAWS, seed, &options)
 }
 
 /// A second body: slimmer, flatter, a deeper groove, a stronger kyphosis, the axis nearer.
@@ -481,15 +482,7 @@ fn turned_stance() {
             rotation: Vector3::new(0.0, degrees.to_radians(), 0.0),
             translation: Vector3::zeros(),
         });
-        let seed = 14000 + 100 * k as u64;
-        let e = scans(
-            &[model],
-            SPACING,
-            Given::WithRays,
-            DRAWS,
-            seed,
-            &Options::standing(),
-        );
+        let e = standing_scans(model, 14000 + 100 * k as u64);
         check(&format!("double curve turned {degrees:+}°"), &e);
     }
 }
