@@ -106,16 +106,17 @@ impl Var {
 /// misfit / window (rad), its depth [`K_DEPTH`] × misfit, independent from level to level;
 /// every value measured at the symmetry point carries the line's term through its derivative
 /// along the section.
-/// Several frames share one frame's terms, from the misfit of frame 0's points alone (`sampled`):
-/// the frames of a scan sample the back nearly where the first does (a subject sways by a few mm,
-/// a fraction of a dot cell), so the detail between the dots moves each alike, and their errors
-/// do not average out (three swayed frames err 0.58 mm where one errs 0.61; with the combined
-/// fit's misfit, on its finer grid, the line's error/σ was 1.26). Where the frames fall far
-/// apart on the cell the terms overstate.
+/// Several frames share one frame's terms, from the misfit of frame 0's points alone
+/// (`sampled`): the frames of a scan sample the back nearly where the first does (a subject
+/// sways by a few mm, a fraction of a dot cell), so the detail between the dots moves each
+/// alike, and their errors do not average out (three swayed frames err 0.58 mm where one errs
+/// 0.61; with the combined fit's misfit, on its finer grid, the line's error/σ was 1.26).
+/// Where the frames fall far apart on the cell the terms overstate.
 /// Calibrated by Monte Carlo (the host's back_accuracy and back_image_path tests: nine backs at
-/// 20 mm spacing, one frame and three swayed, each draw placed anew on the lattice): the
-/// symmetry line's RMS of error/σ lies within 0.86-1.2 on each (1.05-1.45 without). The noiseless error is 0.2-0.5 mm RMS at 20 mm,
-/// 0.05-0.13 at 15 and 0.02-0.04 at 10, where the misfit is 0.8-0.95, 0.4-0.5 and 0.16-0.21 mm.
+/// 20 mm spacing, one frame and three swayed; back_accuracy's placed anew on the lattice each
+/// draw): the symmetry line's RMS of error/σ lies within 0.86-1.2 on each (1.05-1.45
+/// without). The noiseless error is 0.2-0.5 mm RMS at 20 mm, 0.05-0.13 at 15 and 0.02-0.04 at
+/// 10, where the misfit is 0.8-0.95, 0.4-0.5 and 0.16-0.21 mm.
 #[derive(Clone, Copy)]
 pub(super) struct Sampling {
     /// σ of the symmetry point across (mm).
