@@ -357,12 +357,12 @@ fn scoliometer_lumbar_and_severe() {
 }
 
 /// Three frames of one subject swayed by a few mm and about a degree: combined in the first
-/// frame's posture, unbiased beyond their σ (line 0.58 mm, error/σ 1.12; rotation 0.21°,
-/// 1.03), erring less than one frame; with one point in a hundred off the surface in each
-/// frame, the bars hold too (line 0.61 mm, 1.17; rotation 0.24°, 1.16; about five wild points
+/// frame's posture, unbiased beyond their σ (line 0.58 mm, error/σ 1.13; rotation 0.21°,
+/// 0.88), erring less than one frame; with one point in a hundred off the surface in each
+/// frame, the bars hold too (line 0.62 mm, 1.19; rotation 0.24°, 0.98; about five wild points
 /// found a draw; without them left out the rotation was 0.55°, 1.88). Their sampling terms are
-/// one frame's (deltaz-surface's `Sampling`): with the finer grid's misfit they were 1.26
-/// (line).
+/// one frame's, the rotation's with the frames' registration (deltaz-surface's `Sampling`):
+/// with the finer grid's misfit the line's error/σ was 1.26.
 #[test]
 fn swayed_frames_combine() {
     let models = swayed_thoracic();

@@ -597,11 +597,15 @@ fn measure(
         })
         .filter(|w| !backs[w.frame].rim.contains(&w.point))
         .collect();
+    // The trunk's radius about its axis, for the registration's sampling terms: half its width.
+    let (lo, hi) = bounding_box(samples.iter().filter(|s| s.frame == 0).map(|s| s.p));
+    let radius = 0.5 * (hi[0] - lo[0]);
     let measured = Measured {
         fit: surface,
         sampled: &first,
         support: &support,
         posture: options.posture,
+        radius,
     };
     let mut analysis = measured.analyse(spacing)?;
     analysis.frames = frames.len();
@@ -610,9 +614,7 @@ fn measure(
     analysis.calibration = frames[0].calibration;
     analysis.axes = axes;
     if let Some(joint) = &joint {
-        // The sway's sampling terms ([`sway`]), the trunk's half-width its radius.
-        let (lo, hi) = bounding_box(samples.iter().filter(|s| s.frame == 0).map(|s| s.p));
-        analysis.sway = sway(joint, analysis.misfit_mm, 0.5 * (hi[0] - lo[0]));
+        analysis.sway = sway(joint, analysis.misfit_mm, radius);
     }
     Ok((analysis, wild))
 }
