@@ -219,12 +219,11 @@ pub(crate) fn fit(
     common: DMatrix<f64>,
 ) -> Result<Fit, SurfaceError> {
     let n = samples.len() as f64;
-    let first: Vec<Vector3<f64>> = samples
+    let (sum, count) = samples
         .iter()
         .filter(|s| s.frame == 0)
-        .map(|s| s.p)
-        .collect();
-    let centre = first.iter().sum::<Vector3<f64>>() / first.len() as f64;
+        .fold((Vector3::zeros(), 0.0), |(sum, n), s| (sum + s.p, n + 1.0));
+    let centre = sum / count;
     let mean_weight = samples
         .iter()
         .map(|s| 1.0 / s.cov[(2, 2)].max(1e-12))

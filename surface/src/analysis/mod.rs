@@ -559,13 +559,13 @@ fn measure(
         n => {
             let own: Vec<Sample> = samples.iter().filter(|s| s.frame == 0).cloned().collect();
             let first = fit_on(&own, vec![Pose::identity()])?;
-            let mut measured = Support::new(lo, hi, step / 4.0);
+            let mut first_measured = Support::new(lo, hi, step / 4.0);
             for t in &backs[0].surface {
-                measured.fill(t.map(|i| backs[0].positions[i]));
+                first_measured.fill(t.map(|i| backs[0].positions[i]));
             }
             let mut poses = vec![Pose::identity()];
             for k in 1..n {
-                poses.push(first.register(&samples, k, &measured)?);
+                poses.push(first.register(&samples, k, &first_measured)?);
             }
             let joint = fit_on(&samples, poses)?;
             (first, Some(joint))
@@ -598,8 +598,8 @@ fn measure(
         .filter(|w| !backs[w.frame].rim.contains(&w.point))
         .collect();
     // The trunk's radius about its axis, for the registration's sampling terms: half its width.
-    let (lo, hi) = bounding_box(samples.iter().filter(|s| s.frame == 0).map(|s| s.p));
-    let radius = 0.5 * (hi[0] - lo[0]);
+    let (left, right) = bounding_box(samples.iter().filter(|s| s.frame == 0).map(|s| s.p));
+    let radius = 0.5 * (right[0] - left[0]);
     let measured = Measured {
         fit: surface,
         sampled: &first,
