@@ -56,7 +56,7 @@ impl Measured<'_> {
         let mut sampling: Vec<f64> = Vec::new();
         let mut slot = |var: &Var| {
             grads.push(var.gradient.clone());
-            sampling.push(var.sampling);
+            sampling.push(var.own());
             grads.len() - 1
         };
         let per_level: Vec<[Option<usize>; 7]> = levels
@@ -290,7 +290,7 @@ impl Measured<'_> {
     /// The σ of each of `vars`.
     fn sigmas(&self, vars: &[&Var]) -> Vec<f64> {
         let grads: Vec<DVector<f64>> = vars.iter().map(|v| v.gradient.clone()).collect();
-        let sampling: Vec<f64> = vars.iter().map(|v| v.sampling).collect();
+        let sampling: Vec<f64> = vars.iter().map(|v| v.own()).collect();
         self.fit.sigmas(&grads, &sampling)
     }
 

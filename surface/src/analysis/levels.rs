@@ -52,23 +52,42 @@ pub(super) struct Measured<'a> {
     pub(super) radius: f64,
 }
 
-/// A value with its gradient over the fit's unknowns and its sampling term (σ of what the
-/// detail between the dots moves it by: [`Sampling`]).
+/// A value with its gradient over the fit's unknowns, its sampling term (σ of what the
+/// detail between the dots moves it by: [`Sampling`]) and its registration term: what the
+/// frames' registration moves it by, one error shared by every value (the σ of its share,
+/// signed, so that the terms of values combined add, not in quadrature).
 #[derive(Clone)]
 pub(super) struct Var {
     pub(super) value: f64,
     pub(super) gradient: DVector<f64>,
     pub(super) sampling: f64,
+    pub(super) registration: f64,
 }
 
 impl Var {
-    /// atan of a slope whose sampling term is `sampling`.
-    fn angle(slope: f64, gradient: DVector<f64>, sampling: f64) -> Self {
-        let d = 1.0 / (1.0 + slope * slope);
+    /// A value without a registration term.
+    pub(super) fn new(value: f64, gradient: DVector<f64>, sampling: f64) -> Self {
         Self {
-            value: slope.atan(),
-            gradient: gradient * d,
-            sampling: sampling * d,
+            value,
+            gradient,
+            sampling,
+            registration: 0.0,
+        }
+    }
+
+    /// The value's σ beside the fit's: its sampling and registration terms.
+    pub(super) fn own(&self) -> f64 {
+        self.sampling.hypot(self.registration)
+    }
+
+    /// atan of this slope.
+    fn atan(self) -> Self {
+        let d = 1.0 / (1.0 + self.value * self.value);
+        Self {
+            value: self.value.atan(),
+            gradient: self.gradient * d,
+            sampling: self.sampling * d,
+            registration: self.registration * d,
         }
     }
 
@@ -82,7 +101,8 @@ impl Var {
         }
     }
 
-    /// Σ c_k var_k over distinct vars, their sampling errors independent.
+    /// Σ c_k var_k over distinct vars, their sampling errors independent, their registration
+    /// one.
     pub(super) fn sum(terms: &[(&Var, f64)]) -> Self {
         let mut gradient = DVector::zeros(terms[0].0.gradient.len());
         for (var, c) in terms {
@@ -96,6 +116,7 @@ impl Var {
                 .map(|(var, c)| (c * var.sampling).powi(2))
                 .sum::<f64>()
                 .sqrt(),
+            registration: terms.iter().map(|(var, c)| c * var.registration).sum(),
         }
     }
 }
@@ -114,11 +135,13 @@ impl Var {
 /// alike, and their errors do not average out (three swayed frames err 0.58 mm where one errs
 /// 0.61; with the combined fit's misfit, on its finer grid, the line's error/σ was 1.26).
 /// Where the frames fall far apart on the cell the terms overstate.
-/// Several frames' rotations also hold each other frame's registration: the surface, fitted to
-/// all, turns by 1 / frames of each frame's turn about the trunk's axis (misfit / radius, the
-/// sway's term). Without it, three swayed frames through the image path read the rotation at
+/// Several frames' rotations also hold the frames' registration (`registered`): the surface,
+/// fitted to all, turns by 1 / frames of each frame's turn about the trunk's axis (misfit /
+/// radius, the sway's term), every level alike ([`Var::registration`]), and the skin angle
+/// with it. Without it, three swayed frames through the image path read the rotation at
 /// error/σ 1.29 (its common error across the levels about a third of the frames' turn errors
-/// summed), now 1.08; simulated 1.04 → 0.88.
+/// summed), now 1.08; simulated 1.04 → 0.88. Held per level apart, the RMS rotation read
+/// 1.62 (simulated 1.19), now 0.91 (0.86); the skin angle 1.12 → 0.99.
 /// Calibrated by Monte Carlo (the host's back_accuracy and back_image_path tests: nine backs at
 /// 20 mm spacing, one frame and three swayed, each draw placed anew on the lattice): the
 /// symmetry line's RMS of error/σ lies within 0.86-1.2 on each (1.05-1.45
@@ -132,6 +155,9 @@ pub(super) struct Sampling {
     pub(super) turn: f64,
     /// σ of the depth at the symmetry point (mm).
     pub(super) depth: f64,
+    /// σ of the surface's turn about the trunk's axis from the frames' registration (rad),
+    /// shared by every level.
+    pub(super) registered: f64,
 }
 
 /// The line's sampling term per mm of misfit.
@@ -223,22 +249,22 @@ impl Measured<'_> {
         let atr_half = width / 3.0;
         let line: Vec<(f64, f64)> = found.iter().map(|f| (f.v, f.symmetry.a)).collect();
         let misfit = self.misfit_along(&line, w, spacing);
-        let sampling = Sampling {
-            line: K_LINE * misfit,
-            turn: K_ROTATION * misfit / w,
-            depth: K_DEPTH * misfit,
-        };
         // Several frames: each other frame's registration turns it about the trunk's axis by
         // misfit / radius (the sway's term), and the surface, fitted to all, by 1 / frames of
         // each.
         let frames = self.fit.poses.len() as f64;
-        let registered = misfit / self.radius * (frames - 1.0).sqrt() / frames;
+        let sampling = Sampling {
+            line: K_LINE * misfit,
+            turn: K_ROTATION * misfit / w,
+            depth: K_DEPTH * misfit,
+            registered: misfit / self.radius * (frames - 1.0).sqrt() / frames,
+        };
         let levels: Vec<LevelVars> = found
             .iter()
             .map(|f| {
                 // The rotation's sampling term is over its level's window (narrowed at a waist).
                 let sampling = Sampling {
-                    turn: (sampling.turn * w / f.window).hypot(registered),
+                    turn: sampling.turn * w / f.window,
                     ..sampling
                 };
                 let at = |s: &Symmetry| self.level(f.v, s, f.run, skin_d, atr_half, sampling);
@@ -393,36 +419,36 @@ impl Measured<'_> {
     ) -> LevelVars {
         let (a, ga) = (s.a, &s.gradient);
         let line = sampling.line;
-        let x = Var {
-            value: a,
-            gradient: ga.clone(),
-            sampling: line,
-        };
-        let depth = Var {
-            value: self.value(a, v, D::S),
-            gradient: self.moving(a, v, D::S, D::A, ga),
-            sampling: (self.value(a, v, D::A) * line).hypot(sampling.depth),
-        };
+        let x = Var::new(a, ga.clone(), line);
+        let depth = Var::new(
+            self.value(a, v, D::S),
+            self.moving(a, v, D::S, D::A, ga),
+            (self.value(a, v, D::A) * line).hypot(sampling.depth),
+        );
         let rotation = Var {
-            value: s.theta,
-            gradient: s.theta_gradient.clone(),
-            sampling: sampling.turn,
+            registration: sampling.registered,
+            ..Var::new(s.theta, s.theta_gradient.clone(), sampling.turn)
         };
-        let sagittal = Var::angle(
+        let sagittal = Var::new(
             self.value(a, v, D::V),
             self.moving(a, v, D::V, D::AV, ga),
             (self.value(a, v, D::AV) * line).abs(),
-        );
+        )
+        .atan();
         let skin = self.support.covers(a - skin_d, a + skin_d, v).then(|| {
             let g = self.moving(a + skin_d, v, D::S, D::A, ga)
                 - self.moving(a - skin_d, v, D::S, D::A, ga);
             let rise = self.value(a + skin_d, v, D::S) - self.value(a - skin_d, v, D::S);
             let turn = self.value(a + skin_d, v, D::A) - self.value(a - skin_d, v, D::A);
-            Var::angle(
-                rise / (2.0 * skin_d),
-                g / (2.0 * skin_d),
-                (turn * line / (2.0 * skin_d)).abs(),
-            )
+            Var {
+                registration: sampling.registered,
+                ..Var::new(
+                    rise / (2.0 * skin_d),
+                    g / (2.0 * skin_d),
+                    (turn * line / (2.0 * skin_d)).abs(),
+                )
+                .atan()
+            }
         });
         // The scoliometer rests on the back over a third of its width: where the window sits
         // moves its reading little (its RMS of error/σ is 0.9-1.06 without a sampling term).
@@ -430,7 +456,8 @@ impl Measured<'_> {
             .then(|| {
                 let window = ((a - atr_half).max(lo), (a + atr_half).min(hi));
                 let r = resting_line(self.fit, v, a, ga, window)?;
-                Some((Var::angle(r.slope, r.gradient, 0.0), [window.0, window.1]))
+                let slope = Var::new(r.slope, r.gradient, 0.0);
+                Some((slope.atan(), [window.0, window.1]))
             })
             .flatten();
         LevelVars {
