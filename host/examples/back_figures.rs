@@ -8,7 +8,7 @@
 #[allow(dead_code)]
 mod back_sim;
 
-use back_sim::{analysed, back_dots, common_draw, frame, rng, Errors, Given, IndexErrors, Noise};
+use back_sim::{back_dots, common_draw, frame, rng, scanned, Errors, Given, IndexErrors, Noise};
 use deltaz_host::simulate::back::{BackModel, Deformity};
 use deltaz_surface::{analyse, Options};
 use std::time::Instant;
@@ -27,8 +27,8 @@ fn main() {
         let dots = [back_dots(&model, spacing)];
         let mut errors = IndexErrors::default();
         let mut refused = 0;
-        for a in analysed(&dots, Given::WithRays, draws, 1, options) {
-            match a {
+        for k in 0..draws {
+            match scanned(&dots, Given::WithRays, &Noise::issue(), 1 + k, options) {
                 Ok(a) => errors.add(&model, &a),
                 Err(_) => refused += 1,
             }

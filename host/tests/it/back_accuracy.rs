@@ -10,8 +10,8 @@
 //! symmetry line's where the body's detail is resolved.
 
 use crate::back_sim::{
-    back_dots, check_accuracy, check_line_and_rotation, scanned, scanner_dots, scans, scans_of,
-    scattered_dots, shifted, swayed, swayed_thoracic, Errors, Given, IndexErrors, Noise,
+    back_dots, check_accuracy, check_line_and_rotation, scanned, scanner_dots, scans,
+    scattered_dots, shifted, swayed, swayed_thoracic, Dots, Errors, Given, IndexErrors, Noise,
 };
 use deltaz_host::simulate::back::{BackModel, Deformity, Pose, Trunk};
 use deltaz_surface::{Options, Posture};
@@ -68,7 +68,14 @@ fn standing(deformity: Deformity, trunk: Trunk, seed: u64) -> IndexErrors {
 /// The scans of `model` standing, its dots 20 mm apart, from `seed`.
 fn standing_scans(model: BackModel, seed: u64) -> IndexErrors {
     let options = Options::standing();
-    scans(&[model], SPACING, Given::WithRays, DRAWS, seed, &options)
+    scans(
+        &[model],
+        Dots::Placed(SPACING),
+        Given::WithRays,
+        DRAWS,
+        seed,
+        &options,
+    )
 }
 
 /// A second body: slimmer, flatter, a deeper groove, a stronger kyphosis, the axis nearer.
@@ -205,9 +212,9 @@ fn a_cloud_from_elsewhere() {
             ("scattered, thinned", &scattered, Given::Thinned(15.0)),
         ] {
             let what = format!("{}, {cloud}", model.deformity.name);
-            let e = scans_of(
+            let e = scans(
                 std::slice::from_ref(&model),
-                dots,
+                Dots::Fixed(dots),
                 given,
                 DRAWS,
                 seed,
@@ -257,9 +264,9 @@ fn odd_dots(how: &str, given: Given, seed: u64) {
             // At one placement of the lattice: placed anew each draw, the line's error/σ of
             // the double curve bent forward with points off was 1.26.
             let dots = [back_dots(&model, SPACING)];
-            let e = scans_of(
+            let e = scans(
                 std::slice::from_ref(&model),
-                &dots,
+                Dots::Fixed(&dots),
                 given,
                 DRAWS,
                 seed,
@@ -313,7 +320,7 @@ fn forward_bent(deformity: Deformity, seed: u64) {
     let straight = deformity.curves.is_empty();
     let e = scans(
         &[BackModel::forward_bent(deformity)],
-        SPACING,
+        Dots::Placed(SPACING),
         Given::WithRays,
         DRAWS,
         seed,
@@ -370,7 +377,7 @@ fn swayed_frames_combine() {
     let models = swayed_thoracic();
     let e = scans(
         &models,
-        SPACING,
+        Dots::Placed(SPACING),
         Given::WithRays,
         DRAWS,
         12000,
@@ -387,7 +394,14 @@ fn swayed_frames_combine() {
     // With one point in a hundred off the surface in each frame: the wild ones are found among
     // the frames' registered points alike.
     let given = Given::Wrong(0.01);
-    let e = scans(&models, SPACING, given, DRAWS, 12000, &Options::standing());
+    let e = scans(
+        &models,
+        Dots::Placed(SPACING),
+        given,
+        DRAWS,
+        12000,
+        &Options::standing(),
+    );
     check("three swayed frames, one point in a hundred off", &e);
 }
 
@@ -650,7 +664,7 @@ fn other_bodies() {
         };
         let e = scans(
             &[model],
-            spacing,
+            Dots::Placed(spacing),
             Given::WithRays,
             DRAWS,
             seed,

@@ -501,12 +501,12 @@ pub fn check_accuracy(what: &str, e: &IndexErrors) {
     );
 }
 
-/// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), each
-/// [`placed`] anew on the lattice `spacing` apart, with its own noise and common error, its
-/// points `given` as it says, analysed with `options`.
+/// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), the
+/// `dots` on each as it says, with its own noise and common error, its points `given` as it
+/// says, analysed with `options`.
 pub fn scans(
     models: &[BackModel],
-    spacing: f64,
+    dots: Dots,
     given: Given,
     draws: u64,
     seed: u64,
@@ -514,13 +514,28 @@ pub fn scans(
 ) -> IndexErrors {
     let mut errors = IndexErrors::default();
     for k in 0..draws {
-        let models = placed(models, spacing, seed + k);
-        let dots: Vec<_> = models.iter().map(|m| back_dots(m, spacing)).collect();
+        let (models, dots) = match dots {
+            Dots::Placed(spacing) => {
+                let models = placed(models, spacing, seed + k);
+                let dots = models.iter().map(|m| back_dots(m, spacing)).collect();
+                (models, dots)
+            }
+            Dots::Fixed(dots) => (models.to_vec(), dots.to_vec()),
+        };
         let a = scanned(&dots, given, &Noise::issue(), seed + k, options)
             .unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
         errors.add(&models[0], &a);
     }
     errors
+}
+
+/// Where a draw's dots fall on the subject.
+#[derive(Clone, Copy)]
+pub enum Dots<'a> {
+    /// The lattice this far apart (mm), [`placed`] anew on the subject each draw.
+    Placed(f64),
+    /// These on each model, every draw.
+    Fixed(&'a [Vec<LatticeDot>]),
 }
 
 /// `models` shifted together across the camera by a draw (`seed`) uniform over a dot cell
@@ -559,35 +574,6 @@ pub enum Given {
     /// With their rays, each dot's point off with this probability: moved along the camera's
     /// line of sight by 5-30 mm either way (a centroid pulled by a neighbour, a highlight).
     Wrong(f64),
-}
-
-/// [`scans`] of the `dots` on each of `models`, the points `given` as they say.
-pub fn scans_of(
-    models: &[BackModel],
-    dots: &[Vec<LatticeDot>],
-    given: Given,
-    draws: u64,
-    seed: u64,
-    options: &Options,
-) -> IndexErrors {
-    let mut errors = IndexErrors::default();
-    for (k, a) in analysed(dots, given, draws, seed, options).enumerate() {
-        let a = a.unwrap_or_else(|e| panic!("{}, draw {k}: {e}", models[0].deformity.name));
-        errors.add(&models[0], &a);
-    }
-    errors
-}
-
-/// The analyses of `draws` scans ([`scanned`] with the issue's noise, seeds from `seed`), each
-/// as the analysis gives it: a back it refuses is an error.
-pub fn analysed<'a>(
-    dots: &'a [Vec<LatticeDot>],
-    given: Given,
-    draws: u64,
-    seed: u64,
-    options: &'a Options,
-) -> impl Iterator<Item = Result<BackAnalysis, SurfaceError>> + 'a {
-    (0..draws).map(move |k| scanned(dots, given, &Noise::issue(), seed + k, options))
 }
 
 /// One draw (`seed`): a frame of each of `dots` with its own noise and the common error, its
