@@ -501,9 +501,9 @@ pub fn check_accuracy(what: &str, e: &IndexErrors) {
     );
 }
 
-/// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), the
-/// `dots` on each as it says, with its own noise and common error, its points `given` as it
-/// says, analysed with `options`.
+/// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), their
+/// dots falling where `dots` says, each scan with its own noise and common error, its points
+/// `given` as it says, analysed with `options`.
 pub fn scans(
     models: &[BackModel],
     dots: Dots,
