@@ -76,6 +76,14 @@ impl Var {
         }
     }
 
+    /// This value turning with the surface: it holds the frames' registration, `registered`.
+    fn turning(self, registered: f64) -> Self {
+        Self {
+            registration: registered,
+            ..self
+        }
+    }
+
     /// The value's σ beside the fit's: its sampling and registration terms.
     pub(super) fn own(&self) -> f64 {
         self.sampling.hypot(self.registration)
@@ -429,10 +437,8 @@ impl Measured<'_> {
             self.moving(a, v, D::S, D::A, ga),
             (self.value(a, v, D::A) * line).hypot(sampling.depth),
         );
-        let rotation = Var {
-            registration: sampling.registered,
-            ..Var::new(s.theta, s.theta_gradient.clone(), sampling.turn)
-        };
+        let rotation =
+            Var::new(s.theta, s.theta_gradient.clone(), sampling.turn).turning(sampling.registered);
         let sagittal = Var::new(
             self.value(a, v, D::V),
             self.moving(a, v, D::V, D::AV, ga),
@@ -444,15 +450,13 @@ impl Measured<'_> {
                 - self.moving(a - skin_d, v, D::S, D::A, ga);
             let rise = self.value(a + skin_d, v, D::S) - self.value(a - skin_d, v, D::S);
             let turn = self.value(a + skin_d, v, D::A) - self.value(a - skin_d, v, D::A);
-            Var {
-                registration: sampling.registered,
-                ..Var::new(
-                    rise / (2.0 * skin_d),
-                    g / (2.0 * skin_d),
-                    (turn * line / (2.0 * skin_d)).abs(),
-                )
-                .atan()
-            }
+            Var::new(
+                rise / (2.0 * skin_d),
+                g / (2.0 * skin_d),
+                (turn * line / (2.0 * skin_d)).abs(),
+            )
+            .atan()
+            .turning(sampling.registered)
         });
         // The scoliometer rests on the back over a third of its width: where the window sits
         // moves its reading little (its RMS of error/σ is 0.9-1.06 without a sampling term).
