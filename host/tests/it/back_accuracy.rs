@@ -141,11 +141,7 @@ fn straight_back_standing() {
         largest <= 1.0,
         "a straight back's largest |rotation| {largest:.2}°"
     );
-    let z = e.rotation_max.z();
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "straight: largest rotation's RMS of error/σ {z:.2}"
-    );
+    e.rotation_max.assert_honest("straight: largest rotation");
     // The RMS rotation of a profile that is mostly noise (3.3 without the noise's share).
     let z = e.rotation_rms.z();
     assert!(
@@ -334,11 +330,7 @@ fn forward_bent(deformity: Deformity, seed: u64) {
         "{name}: largest ATR RMS {:.3}°",
         e.atr_max.rms()
     );
-    assert!(
-        (0.8..=1.25).contains(&e.atr.z()),
-        "{name}: ATR RMS of error/σ {:.2}",
-        e.atr.z()
-    );
+    e.atr.assert_honest(&format!("{name}: ATR"));
     let z = e.atr_max.z();
     assert!(
         z <= 1.25 && (z >= 0.8 || !straight),
@@ -384,11 +376,8 @@ fn swayed_frames_combine() {
         &Options::standing(),
     );
     check("three swayed frames", &e);
-    let z = e.rotation_rms.z();
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "three swayed frames: RMS rotation's RMS of error/σ {z:.2}"
-    );
+    e.rotation_rms
+        .assert_honest("three swayed frames: RMS rotation");
     let one = standing(Deformity::thoracic(), Trunk::default(), 12000);
     assert!(e.rotation.rms() < one.rotation.rms() && e.symmetry_x.rms() < one.symmetry_x.rms());
     // With one point in a hundred off the surface in each frame: the wild ones are found among
@@ -442,11 +431,7 @@ fn swayed_frames_register_wherever_the_lattice_falls() {
             ("shift toward the camera", &shifts[2]),
         ];
         for (what, e) in held {
-            let z = e.z();
-            assert!(
-                (0.8..=1.25).contains(&z),
-                "{subject}: {what}: RMS error/σ {z:.2}"
-            );
+            e.assert_honest(&format!("{subject}: {what}"));
         }
     }
 }

@@ -207,6 +207,12 @@ impl Errors {
     pub fn count(&self) -> usize {
         self.n
     }
+
+    /// Asserts that the σ were honest: the RMS of error/σ within 0.8-1.25 (the bar).
+    pub fn assert_honest(&self, what: &str) {
+        let z = self.z();
+        assert!((0.8..=1.25).contains(&z), "{what}: RMS of error/σ {z:.2}");
+    }
 }
 
 /// Errors with their σ, collected.
@@ -470,11 +476,8 @@ pub fn check_line_and_rotation(what: &str, e: &IndexErrors) {
         e.symmetry_x.count()
     );
     check_accuracy(what, e);
-    let z = e.symmetry_x.z();
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "{what}: symmetry line RMS of error/σ {z:.2}"
-    );
+    e.symmetry_x
+        .assert_honest(&format!("{what}: symmetry line"));
 }
 
 /// The accuracy bars (rotation ≤ 0.5° RMS, its error/σ within 0.8-1.25; symmetry line
@@ -494,11 +497,7 @@ pub fn check_accuracy(what: &str, e: &IndexErrors) {
         "{what}: symmetry line RMS {:.2} mm",
         e.symmetry_x.rms()
     );
-    let z = e.rotation.z();
-    assert!(
-        (0.8..=1.25).contains(&z),
-        "{what}: rotation RMS of error/σ {z:.2}"
-    );
+    e.rotation.assert_honest(&format!("{what}: rotation"));
 }
 
 /// `draws` scans of `models` (one frame each, the same subject swayed; frame 0's truth), their
