@@ -207,7 +207,7 @@ pub struct Components {
 const BAND_ROWS: usize = 32;
 
 /// The components of the pixels above background + k σ (8-connected), found row by row: bands
-/// of [`BAND_ROWS`] rows on all cores, joined where their runs touch across the bands' edges.
+/// of `BAND_ROWS` rows on all cores, joined where their runs touch across the bands' edges.
 pub fn components<P: Copy + Into<f64> + Sync>(
     img: &GrayView<P>,
     polarity: Polarity,

@@ -125,7 +125,7 @@ pub struct Measurement {
 /// 3. shape tests, then the template fit on the window around each blob, leaving out the
 ///    pixels of *other* components (and 2 pixels around them) but nothing else: a large blob
 ///    around the targets (a dark room, a frame) does not empty their windows;
-/// 4. the gates ([`gate_fits`]): residual and template-vs-gravity limits from the noise, the
+/// 4. the gates (`gate_fits`): residual and template-vs-gravity limits from the noise, the
 ///    target's amplitude and size, and the spread of the image's own fits;
 /// 5. the population ([`population::gate_faint`]): a target far fainter than the targets around
 ///    it (a speck of a textured background) is left out.

@@ -6,7 +6,7 @@
 //! points without their rays, over what the camera sees: [`mesh`]) finds the back (the
 //! largest connected piece; occlusions and depth jumps leave holes), one smooth
 //! surface is fitted to all frames of a subject with the frames registered onto the first
-//! ([`fit`]), and [`analyse`] measures it: the symmetry line ([`symmetry`]), the surface
+//! (`fit`), and [`analyse`] measures it: the symmetry line ([`symmetry`]), the surface
 //! rotation along it, its lateral deviation, trunk imbalance and inclination, skin angles,
 //! the sagittal profile (kyphosis, lordosis), the virtual scoliometer on a forward-bent scan
 //! ([`scoliometer`]) and a mirror-asymmetry map ([`BackAnalysis`]). [`compare()`] tells which

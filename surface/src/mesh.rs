@@ -40,7 +40,7 @@ const CREASE: f64 = 45.0 * std::f64::consts::PI / 180.0;
 impl Mesh {
     /// Each lattice cell makes two triangles where its four corners were measured (split along
     /// the shorter diagonal) and one where three were; the median lattice edge is the spacing
-    /// ([`Mesh::kept`] leaves out jumps and oblique triangles).
+    /// (`Mesh::kept` leaves out jumps and oblique triangles).
     pub fn over_lattice(points: &[Vector3<f64>], rays: &[[i32; 2]]) -> Self {
         let node: HashMap<[i32; 2], usize> =
             rays.iter().enumerate().map(|(i, r)| (*r, i)).collect();
@@ -85,7 +85,7 @@ impl Mesh {
     /// Points without their rays (a cloud from another scanner) make the Delaunay triangles of
     /// their directions from the camera (at the origin, looking along −z: every point has
     /// z < 0); the spacing is the median of the triangles' two shorter edges, a lattice's edges
-    /// without its cells' diagonals. [`Mesh::kept`] leaves out the long triangles across holes
+    /// without its cells' diagonals. `Mesh::kept` leaves out the long triangles across holes
     /// and around the outline, and the oblique ones.
     pub fn over_directions(points: &[Vector3<f64>]) -> Self {
         let seen: Vec<delaunator::Point> = points
@@ -160,7 +160,7 @@ impl Mesh {
 
     /// The smooth pieces of the mesh, largest first (by points; of equal ones, that of the
     /// first triangle first): its triangles connected across shared edges where the surface folds
-    /// by less than [`CREASE`] (an arm touching the trunk meets it at a fold, a floor a wall).
+    /// by less than `CREASE` (an arm touching the trunk meets it at a fold, a floor a wall).
     pub fn pieces(&self) -> Vec<Piece> {
         let t = &self.triangles;
         let mut parent: Vec<usize> = (0..t.len()).collect();
@@ -234,7 +234,7 @@ pub struct Piece {
 }
 
 impl Mesh {
-    /// The gaps `triangles` enclose ([`GAP_EDGES`]), each as triangles (a fan over its loop):
+    /// The gaps `triangles` enclose (`GAP_EDGES`), each as triangles (a fan over its loop):
     /// the surface spans them. The triangles turn alike (a lattice's cells and the Delaunay
     /// triangles do), so the boundary's edges, each in its triangle's turn, run in loops: the
     /// outline one way round and every hole the other.

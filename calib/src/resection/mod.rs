@@ -6,7 +6,7 @@
 //!    the most of them) decomposed into rotation and translation (all points in one plane, or a
 //!    plane with a few raised points: ≥ 4 points in the plane), and the DLT
 //!    (11 parameters, ≥ 6 points off one plane), and the perspective-three-point pose of three
-//!    well-spread points ([`p3p`]) that best fits the others (any 4 points or more). Each is
+//!    well-spread points (`p3p`) that best fits the others (any 4 points or more). Each is
 //!    refined; the one with the smallest weighted residual wins, so a weak DLT (few raised
 //!    points) cannot spoil a good planar start, nor a plane of three collinear points and one
 //!    more a pose that the raised points decide.

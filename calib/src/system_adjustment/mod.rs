@@ -26,7 +26,7 @@
 //! `calibrate camera` then `calibrate projector` is one adjustment, sequentially). Unknowns:
 //! [free inner | plate poses | field poses | P (central) | plate control] (the reduced
 //! system), per ray 2 (central) or 4 (non-central) parameters and per field target its 3 coordinates, both
-//! eliminated by the Schur complement as in the bundle ([`elimination`]). Variance components:
+//! eliminated by the Schur complement as in the bundle (`elimination`). Variance components:
 //! σ_g² ← σ_g² vᵀ_g P_g v_g / r_g, r_g the group's sum of redundancy numbers, until they settle;
 //! the covariances then use the estimated σ.
 //!

@@ -60,7 +60,7 @@ pub fn residual_plots(residuals: &[Residual], width: u32, height: u32) -> Result
 
 /// The plots of a projector or system calibration: [`residual_plots`] of `residuals` on the
 /// sensor of `grid`, `ray_misses.svg` of each ray's RMS and largest distance from its plate
-/// points (mm; `None` for a ray seen on one plate) and [`plate_maps`] of the plates
+/// points (mm; `None` for a ray seen on one plate) and `plate_maps` of the plates
 /// reconstructed with `rig`.
 pub fn system_plots(
     residuals: &[Residual],

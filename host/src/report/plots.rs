@@ -225,7 +225,7 @@ const ZERO: RGBColor = RGBColor(215, 215, 215);
 
 /// An accuracy map: each point at its (X, Y) in mm, coloured by its error component `what`
 /// (mm; e.g. "Z error") against truth or a reference, with a colour bar from −largest |error|
-/// (blue) through 0 (light grey, [`ZERO`]) to +largest (red). For plates and test objects alike.
+/// (blue) through 0 (light grey, `ZERO`) to +largest (red). For plates and test objects alike.
 pub fn accuracy_map(title: &str, what: &str, points: &[(f64, f64, f64)]) -> Result<String> {
     let span = |values: &mut dyn Iterator<Item = f64>| {
         let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {

@@ -324,7 +324,7 @@ pub fn analyse_clouds(
 }
 
 /// [`analyse_clouds`] with the points' covariance from `sigma`. Clouds denser than a dot
-/// pattern ([`DENSE_MM`]) are thinned even if `thin` is not given, and a note says so.
+/// pattern (`DENSE_MM`) are thinned even if `thin` is not given, and a note says so.
 pub fn analyse_with(
     paths: &[PathBuf],
     sigma: PointSigma,

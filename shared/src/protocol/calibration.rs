@@ -131,7 +131,7 @@ pub fn decode_calibration(
 }
 
 /// [`decode_calibration`] of a blob of `len` bytes that `read(offset, out)` fetches piecewise
-/// (a blob in flash: no copy of it in RAM, only a window of [`HEADER_WINDOW`] bytes).
+/// (a blob in flash: no copy of it in RAM, only a window of `HEADER_WINDOW` bytes).
 pub fn decode_calibration_from<E>(
     len: usize,
     mut read: impl FnMut(usize, &mut [u8]) -> Result<(), E>,

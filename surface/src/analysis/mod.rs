@@ -18,7 +18,7 @@
 //! inflection is where the sagittal slope is largest, the cervico-thoracic and lumbo-sacral
 //! ones where it is least above and below it; kyphosis is the slope's change from the upper to
 //! the middle one, lordosis from the lower). Every value is a function of the fitted surface;
-//! its σ is its gradient carried through the fit's covariance ([`crate::fit`]).
+//! its σ is its gradient carried through the fit's covariance (`crate::fit`).
 
 mod back;
 mod indices;
@@ -251,7 +251,7 @@ pub struct BackAnalysis {
     pub skin_angle_distance_mm: f64,
     /// The normalised residuals' RMS of the surface fit (about 1 when the points' σ hold).
     pub fit_chi: f64,
-    /// The surface's misfit along the symmetry line ([`crate::fit::Fit::misfit`] within the
+    /// The surface's misfit along the symmetry line (`crate::fit::Fit::misfit` within the
     /// symmetry window, of the first frame's points alone): detail between the dots, which the
     /// sampling terms of the symmetry line's and the rotation's σ scale with.
     pub misfit_mm: f64,
