@@ -6,6 +6,8 @@
 //! - otherwise the test is skipped visibly: a `SKIPPED` line goes to the terminal (past libtest's
 //!   output capture) and, when `DELTAZ_SKIP_LOG` names a file, a line is appended to it, which
 //!   `scripts/test` counts and lists after the run.
+//!
+//! Fixtures built into a folder shared by test processes go through [`fixture`].
 #![deny(missing_docs)]
 
 use std::io::Write;
@@ -70,4 +72,24 @@ pub fn shared_data(name: &str) -> Option<std::path::PathBuf> {
         .join(name);
     let hint = format!("the data set at {}", dir.display());
     require(name, dir.is_dir(), &hint).then_some(dir)
+}
+
+/// Builds a fixture that lives in a folder every test process shares (under
+/// `CARGO_TARGET_TMPDIR`), once per process: `build` runs under an exclusive lock on the file
+/// `lock`, and the process then holds a shared lock on it until it exits, so that no other
+/// process rebuilds the folder under it (cargo nextest runs each test in a process of its own;
+/// a `OnceLock` alone guards a process). Call it from the fixture's `OnceLock`.
+pub fn fixture<T>(lock: &std::path::Path, build: impl FnOnce() -> T) -> T {
+    let file = std::fs::File::create(lock)
+        .unwrap_or_else(|e| panic!("fixture lock {}: {e}", lock.display()));
+    let locked = |r: std::io::Result<()>| r.unwrap_or_else(|e| panic!("{}: {e}", lock.display()));
+    locked(file.lock());
+    let built = build();
+    // Another process may rebuild between these two: it builds the same, and this one reads
+    // only once it holds the shared lock, after that build.
+    locked(file.unlock());
+    locked(file.lock_shared());
+    // Held until the process exits.
+    std::mem::forget(file);
+    built
 }

@@ -14,8 +14,9 @@ use std::sync::OnceLock;
 /// and the images rendered from the same simulation (in [`images_parent`]).
 fn fixture() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_fixture");
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_fixture");
+    // The lock covers the rendered images too.
+    DIR.get_or_init(move || deltaz_testkit::fixture(&dir.with_extension("lock"), move || {
         let scenario = paper_rig(&dir, 0.1, 5, &words("--image-sigma-px 0.1"));
         let spec = deltaz_host::simulate::images::ImageSpec::default();
         // The images outside the fixture (not copied for every case).
@@ -38,7 +39,7 @@ fn fixture() -> &'static Path {
             &words("reconstruct --system system.json --obs sim/plate_obs.csv --out multi.ply --csv multi.csv"),
         );
         dir
-    })
+    }))
 }
 
 /// The fixture's rendered images are in `images/` here.

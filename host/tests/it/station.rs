@@ -31,73 +31,75 @@ pub struct Fixture {
 
 pub fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
-    FIXTURE.get_or_init(|| {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("station_fixture");
-        // The image noise of the rendered frames' dots, so that the calibration's σ0 of the
-        // dots (the points' own share) is theirs.
-        let scenario = paper_rig(&dir, 0.2, 3, &["--quiet"]);
-        let (grid, _) = true_camera(&scenario);
-        let rig = true_rig(&scenario);
-        let render = |folder: &str, objects: &[Object]| {
-            std::fs::create_dir_all(dir.join(folder)).unwrap();
-            for (k, object) in objects.iter().enumerate() {
-                let dots = object_dots(&rig, object);
-                object_frame(&rig, &dots, 100 + k as u64)
-                    .save(dir.join(folder).join(format!("f{k:02}.png")))
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("station_fixture");
+    FIXTURE.get_or_init(move || {
+        deltaz_testkit::fixture(&dir.with_extension("lock"), move || {
+            // The image noise of the rendered frames' dots, so that the calibration's σ0 of the
+            // dots (the points' own share) is theirs.
+            let scenario = paper_rig(&dir, 0.2, 3, &["--quiet"]);
+            let (grid, _) = true_camera(&scenario);
+            let rig = true_rig(&scenario);
+            let render = |folder: &str, objects: &[Object]| {
+                std::fs::create_dir_all(dir.join(folder)).unwrap();
+                for (k, object) in objects.iter().enumerate() {
+                    let dots = object_dots(&rig, object);
+                    object_frame(&rig, &dots, 100 + k as u64)
+                        .save(dir.join(folder).join(format!("f{k:02}.png")))
+                        .unwrap();
+                }
+            };
+            // A scoliotic back standing 1.5 m from the camera, swayed a little from frame to frame,
+            // rendered through the paper rig (440 rays: the in-process device holds them).
+            let spec = ImageSpec::default();
+            std::fs::create_dir_all(dir.join("frames")).unwrap();
+            for k in 0..6u32 {
+                let s = f64::from(k % 3) - 1.0;
+                let model = BackModel::standing(Deformity::thoracic()).with_pose(Pose {
+                    rotation: Vector3::new(0.0, 0.004 * s, 0.0),
+                    translation: Vector3::new(2.0 * s, 0.0, 1.5 * s),
+                });
+                let label = format!("f{k:02}");
+                render_back(&rig, &label, &model, &spec, 100 + u64::from(k))
+                    .image
+                    .save_png(&dir.join("frames").join(format!("{label}.png")), spec.depth)
                     .unwrap();
             }
-        };
-        // A scoliotic back standing 1.5 m from the camera, swayed a little from frame to frame,
-        // rendered through the paper rig (440 rays: the in-process device holds them).
-        let spec = ImageSpec::default();
-        std::fs::create_dir_all(dir.join("frames")).unwrap();
-        for k in 0..6u32 {
-            let s = f64::from(k % 3) - 1.0;
-            let model = BackModel::standing(Deformity::thoracic()).with_pose(Pose {
-                rotation: Vector3::new(0.0, 0.004 * s, 0.0),
-                translation: Vector3::new(2.0 * s, 0.0, 1.5 * s),
-            });
-            let label = format!("f{k:02}");
-            render_back(&rig, &label, &model, &spec, 100 + u64::from(k))
-                .image
-                .save_png(&dir.join("frames").join(format!("{label}.png")), spec.depth)
-                .unwrap();
-        }
-        // The same back 200 mm aside, before a wall 140 mm behind it, within the working depth.
-        std::fs::create_dir_all(dir.join("walled")).unwrap();
-        for k in 0..3u64 {
-            let model = BackModel {
-                backdrop: Some(WALL_MM),
-                ..BackModel::standing(Deformity::thoracic())
+            // The same back 200 mm aside, before a wall 140 mm behind it, within the working depth.
+            std::fs::create_dir_all(dir.join("walled")).unwrap();
+            for k in 0..3u64 {
+                let model = BackModel {
+                    backdrop: Some(WALL_MM),
+                    ..BackModel::standing(Deformity::thoracic())
+                }
+                .with_pose(Pose {
+                    rotation: Vector3::zeros(),
+                    translation: Vector3::new(-200.0, 0.0, 0.0),
+                });
+                let label = format!("w{k:02}");
+                render_back(&rig, &label, &model, &spec, 200 + k)
+                    .image
+                    .save_png(&dir.join("walled").join(format!("{label}.png")), spec.depth)
+                    .unwrap();
             }
-            .with_pose(Pose {
-                rotation: Vector3::zeros(),
-                translation: Vector3::new(-200.0, 0.0, 0.0),
-            });
-            let label = format!("w{k:02}");
-            render_back(&rig, &label, &model, &spec, 200 + k)
-                .image
-                .save_png(&dir.join("walled").join(format!("{label}.png")), spec.depth)
-                .unwrap();
-        }
-        let plane: Vec<Object> = (0..3)
-            .map(|k| Object::Plane {
-                depth: 1500.0 + 5.0 * f64::from(k),
-                tilt: 0.1,
-            })
-            .collect();
-        render("plane", &plane);
-        std::fs::create_dir_all(dir.join("empty")).unwrap();
-        for k in 0..2 {
-            image::GrayImage::new(grid.width, grid.height)
-                .save(dir.join("empty").join(format!("e{k}.png")))
-                .unwrap();
-        }
-        Fixture {
-            dir,
-            near: 1420.0,
-            far: 1650.0,
-        }
+            let plane: Vec<Object> = (0..3)
+                .map(|k| Object::Plane {
+                    depth: 1500.0 + 5.0 * f64::from(k),
+                    tilt: 0.1,
+                })
+                .collect();
+            render("plane", &plane);
+            std::fs::create_dir_all(dir.join("empty")).unwrap();
+            for k in 0..2 {
+                image::GrayImage::new(grid.width, grid.height)
+                    .save(dir.join("empty").join(format!("e{k}.png")))
+                    .unwrap();
+            }
+            Fixture {
+                dir,
+                near: 1420.0,
+                far: 1650.0,
+            }
+        })
     })
 }
 
