@@ -7,6 +7,10 @@
 #[path = "../tests/it/back_sim.rs"]
 #[allow(dead_code)]
 mod back_sim;
+// back_sim's honesty assert (unused here).
+#[path = "../tests/it/honesty.rs"]
+#[allow(dead_code)]
+mod honesty;
 
 use back_sim::{back_dots, common_draw, frame, rng, scanned, Errors, Given, IndexErrors, Noise};
 use deltaz_host::simulate::back::{BackModel, Deformity};

@@ -1,6 +1,7 @@
 //! The back model's dots as a scan gives them: each dot's own noise (σ mostly along the
 //! camera's line of sight) and the calibration's error common to all points of a scan.
 
+use crate::honesty::assert_honest;
 use deltaz_host::simulate::back::{Axes, BackModel, Deformity, Lattice, LatticeDot, Pose};
 use deltaz_surface::{analyse, BackAnalysis, CommonShare, Frame, Options, ScanPoint, SurfaceError};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
@@ -210,8 +211,7 @@ impl Errors {
 
     /// Asserts that the σ were honest: the RMS of error/σ within 0.8-1.25 (the bar).
     pub fn assert_honest(&self, what: &str) {
-        let z = self.z();
-        assert!((0.8..=1.25).contains(&z), "{what}: RMS of error/σ {z:.2}");
+        assert_honest(self.z(), what);
     }
 }
 

@@ -14,32 +14,34 @@ use std::sync::OnceLock;
 /// and the images rendered from the same simulation (in [`images_parent`]).
 fn fixture() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_fixture");
-    // The lock covers the rendered images too.
-    DIR.get_or_init(move || deltaz_testkit::fixture(&dir.with_extension("lock"), move || {
-        let scenario = paper_rig(&dir, 0.1, 5, &words("--image-sigma-px 0.1"));
-        let spec = deltaz_host::simulate::images::ImageSpec::default();
-        // The images outside the fixture (not copied for every case).
-        deltaz_host::simulate::images::write_images(&scenario, 5, &spec, &images_parent()).unwrap();
-        let plate = std::fs::read_to_string(dir.join("sim/plate_obs.csv")).unwrap();
-        let dots: String = plate
-            .lines()
-            .take(1)
-            .chain(
-                plate
-                    .lines()
-                    .filter(|l| l.starts_with("p1,") && l.ends_with(",dot")),
-            )
-            .map(|l| format!("{l}\n"))
-            .collect();
-        std::fs::write(dir.join("dots.csv"), dots).unwrap();
-        // A cloud of several images, as PLY and CSV.
-        deltaz_ok(
-            &dir,
-            &words("reconstruct --system system.json --obs sim/plate_obs.csv --out multi.ply --csv multi.csv"),
-        );
-        dir
-    }))
+    DIR.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bad_input_fixture");
+        // The lock covers the rendered images too.
+        deltaz_testkit::fixture(&dir.with_extension("lock"), move || {
+            let scenario = paper_rig(&dir, 0.1, 5, &words("--image-sigma-px 0.1"));
+            let spec = deltaz_host::simulate::images::ImageSpec::default();
+            // The images outside the fixture (not copied for every case).
+            deltaz_host::simulate::images::write_images(&scenario, 5, &spec, &images_parent()).unwrap();
+            let plate = std::fs::read_to_string(dir.join("sim/plate_obs.csv")).unwrap();
+            let dots: String = plate
+                .lines()
+                .take(1)
+                .chain(
+                    plate
+                        .lines()
+                        .filter(|l| l.starts_with("p1,") && l.ends_with(",dot")),
+                )
+                .map(|l| format!("{l}\n"))
+                .collect();
+            std::fs::write(dir.join("dots.csv"), dots).unwrap();
+            // A cloud of several images, as PLY and CSV.
+            deltaz_ok(
+                &dir,
+                &words("reconstruct --system system.json --obs sim/plate_obs.csv --out multi.ply --csv multi.csv"),
+            );
+            dir
+        })
+    })
 }
 
 /// The fixture's rendered images are in `images/` here.

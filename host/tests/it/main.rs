@@ -20,6 +20,7 @@ mod desk;
 mod device_cli;
 mod export_opencv;
 mod frames;
+mod honesty;
 mod identify;
 mod images_cli;
 mod images_to_points;

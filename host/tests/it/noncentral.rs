@@ -6,6 +6,7 @@
 //! a plate image held out), the camera as a prior (sequential) and its field images in the
 //! adjustment (joint).
 
+use crate::honesty::assert_honest;
 use crate::system::cli::calibrate_system;
 use deltaz_calib::system_adjustment::{Frame, SystemAdjustment};
 use deltaz_host::simulate::{simulate, write_simulation, Scenario, Simulation};
@@ -56,10 +57,7 @@ fn noncentral_system_states_honest_sigma() {
                 rms.as_slice()
             );
             for a in 0..3 {
-                assert!(
-                    (0.8..=1.25).contains(&rms[a]),
-                    "{name} {path} axis {a}: {rms}"
-                );
+                assert_honest(rms[a], format_args!("{name} {path} axis {a}"));
             }
         }
     }

@@ -31,8 +31,8 @@ pub struct Fixture {
 
 pub fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("station_fixture");
-    FIXTURE.get_or_init(move || {
+    FIXTURE.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("station_fixture");
         deltaz_testkit::fixture(&dir.with_extension("lock"), move || {
             // The image noise of the rendered frames' dots, so that the calibration's σ0 of the
             // dots (the points' own share) is theirs.

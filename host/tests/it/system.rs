@@ -3,6 +3,7 @@
 //! against the truth, with the camera calibrated first (sequential) and with its field images in
 //! the same adjustment (joint), the variance components, the datum, incomplete data.
 
+use crate::honesty::assert_honest;
 use deltaz_calib::system_adjustment::{Frame, SystemAdjustment};
 use deltaz_host::simulate::{simulate, Scenario, Simulation};
 use deltaz_host::workflows::accuracy::{
@@ -197,14 +198,8 @@ fn check(name: &str, h: &Honesty) {
         h.inner
     );
     for a in 0..3 {
-        assert!(
-            (0.8..=1.25).contains(&h.centre[a]),
-            "{name} centre axis {a}"
-        );
-        assert!(
-            (0.8..=1.25).contains(&h.points[a]),
-            "{name} points axis {a}"
-        );
+        assert_honest(h.centre[a], format_args!("{name} centre axis {a}"));
+        assert_honest(h.points[a], format_args!("{name} points axis {a}"));
         assert!(
             h.scatter_over_floor[a] <= 1.25,
             "{name} scatter/floor axis {a}"
