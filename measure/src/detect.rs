@@ -5,6 +5,7 @@
 //! centroid (the paper's "gravity centre", section 6.2.1) with weights w = I − background over the
 //! pixels above the threshold.
 
+use crate::median;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
@@ -206,15 +207,6 @@ impl<'a> RowInterpolation<'a> {
             (out, weights) = (rest, more);
         }
     }
-}
-
-/// The median of a buffer (reordered in place); 0 for an empty one.
-fn median(buf: &mut [f64]) -> f64 {
-    if buf.is_empty() {
-        return 0.0;
-    }
-    let mid = buf.len() / 2;
-    *buf.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The image noise σ from the median absolute difference of horizontal neighbours

@@ -458,9 +458,13 @@ fn gate_fits(
     (accepted, rejected)
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+/// The median of a buffer (the upper one of an even count; reordered in place); 0 for an empty one.
+pub(crate) fn median(buf: &mut [f64]) -> f64 {
+    if buf.is_empty() {
+        return 0.0;
+    }
+    let mid = buf.len() / 2;
+    *buf.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// A decoded image: 8- and 16-bit grayscale are kept as decoded; colour is converted to 16-bit

@@ -14,7 +14,7 @@
 //! targets 150 DN deep has a tenth to a quarter), and an outlier of the image's own spread of ρ.
 
 use super::detect::{Blob, Rejection};
-use super::Target;
+use super::{median, Target};
 use rayon::prelude::*;
 
 /// The neighbours whose median amplitude is a target's local level.
@@ -64,12 +64,6 @@ pub fn gate_faint(targets: Vec<Target>) -> (Vec<Target>, Vec<(Blob, Rejection)>)
         }
     }
     (kept, faint)
-}
-
-/// The median of a non-empty buffer (reordered in place).
-fn median(v: &mut [f64]) -> f64 {
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// Points binned in square cells of about two points each, for nearest-neighbour queries.
