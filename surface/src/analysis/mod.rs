@@ -486,33 +486,42 @@ pub fn analyse(frames: &[Frame], options: &Options) -> Result<BackAnalysis, Surf
     }
     let mut wild: Vec<WildPoint> = Vec::new();
     loop {
-        let (mut analysis, found) = measure(frames, &backs, axes, options, &wild)?;
-        if found.is_empty() {
-            let asymmetry = analysis.asymmetry_over_noise;
-            // NaN: no asymmetry where the points state no noise.
-            if asymmetry.is_nan() || asymmetry < LINE_UNDETERMINED {
-                let chi = analysis.fit_chi;
-                return Err(SurfaceError::LineUndetermined { asymmetry, chi });
+        match measure(frames, &backs, axes, options, &wild)? {
+            Round::Wild(found) => wild.extend(found),
+            Round::Measured(mut analysis) => {
+                let asymmetry = analysis.asymmetry_over_noise;
+                // NaN: no asymmetry where the points state no noise.
+                if asymmetry.is_nan() || asymmetry < LINE_UNDETERMINED {
+                    let chi = analysis.fit_chi;
+                    return Err(SurfaceError::LineUndetermined { asymmetry, chi });
+                }
+                wild.sort_by_key(|w| (w.frame, w.point));
+                analysis.wild = wild;
+                analysis.planes_left_out = planes_left_out;
+                analysis.points_apart = points_apart;
+                return Ok(*analysis);
             }
-            wild.sort_by_key(|w| (w.frame, w.point));
-            analysis.wild = wild;
-            analysis.planes_left_out = planes_left_out;
-            analysis.points_apart = points_apart;
-            return Ok(analysis);
         }
-        wild.extend(found);
     }
 }
 
-/// One analysis of the `backs` found in `frames`, in `axes`, without the points `wild` in its
-/// fit, with the points it finds wild among the rest.
+/// What one round of [`measure`] came to.
+enum Round {
+    /// Points wild among those fitted: the round is repeated without them.
+    Wild(Vec<WildPoint>),
+    /// None wild: the analysis.
+    Measured(Box<BackAnalysis>),
+}
+
+/// The surface of the `backs` found in `frames`, in `axes`, fitted without the points `wild`;
+/// the points wild among the rest if there are any, else its analysis.
 fn measure(
     frames: &[Frame],
     backs: &[Back],
     axes: Axes,
     options: &Options,
     wild: &[WildPoint],
-) -> Result<(BackAnalysis, Vec<WildPoint>), SurfaceError> {
+) -> Result<Round, SurfaceError> {
     let rot = axes.matrix();
     let rot_d = DMatrix::from_fn(3, 3, |r, c| rot[(r, c)]);
     let origin: Vec<[usize; 2]> = backs
@@ -572,14 +581,6 @@ fn measure(
         }
     };
     let surface = joint.as_ref().unwrap_or(&first);
-    let mut support = Support::new(lo, hi, step / 4.0);
-    for (k, b) in backs.iter().enumerate() {
-        let pose = surface.poses[k];
-        let moved = |i: usize| surface.centre + pose.r * (b.positions[i] - surface.centre) + pose.t;
-        for t in &b.surface {
-            support.fill(t.map(moved));
-        }
-    }
     // Wild points within the surface: along its rim the surface turns away from its fit (on a
     // real back, each point of a flank found wild once the last was left out), and a point
     // there has neighbours on one side only.
@@ -596,7 +597,18 @@ fn measure(
             }
         })
         .filter(|w| !backs[w.frame].rim.contains(&w.point))
-        .collect();
+        .collect::<Vec<_>>();
+    if !wild.is_empty() {
+        return Ok(Round::Wild(wild));
+    }
+    let mut support = Support::new(lo, hi, step / 4.0);
+    for (k, b) in backs.iter().enumerate() {
+        let pose = surface.poses[k];
+        let moved = |i: usize| surface.centre + pose.r * (b.positions[i] - surface.centre) + pose.t;
+        for t in &b.surface {
+            support.fill(t.map(moved));
+        }
+    }
     // The trunk's radius about its axis, for the registration's sampling terms: half its width.
     let (left, right) = bounding_box(samples.iter().filter(|s| s.frame == 0).map(|s| s.p));
     let radius = 0.5 * (right[0] - left[0]);
@@ -616,7 +628,7 @@ fn measure(
     if let Some(joint) = &joint {
         analysis.sway = sway(joint, analysis.misfit_mm, radius);
     }
-    Ok((analysis, wild))
+    Ok(Round::Measured(Box::new(analysis)))
 }
 /// The sway's shift toward the camera errs by this times the misfit along the symmetry line.
 /// Calibrated on two bodies' three swayed frames at 16 placements of the lattice each (the
