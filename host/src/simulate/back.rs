@@ -411,6 +411,20 @@ impl BackModel {
         ((a, n), (cos - dh * sin, sin + dh * cos))
     }
 
+    /// A height n above every point of the section at its level (its bumps taken at their
+    /// full height on both sides, its turn at its widest; a micrometre to spare for rounding):
+    /// a ray there is clear of the back.
+    fn highest(&self, l: &Level) -> f64 {
+        let t = &self.trunk;
+        let r = t.axis_depth;
+        if l.cos < 0.0 {
+            return f64::INFINITY;
+        }
+        let bumps = 2.0 * (t.paraspinal.max(0.0) + l.shoulder_blades.max(0.0));
+        let h = bumps + (-t.groove).max(0.0) + (-l.depth).max(0.0);
+        l.sagittal - r + EDGE * l.half_width * l.sin.abs() + (h + r) * l.cos + 1e-3
+    }
+
     /// Whether the trunk's surface holds the section point s at its level.
     fn on_trunk(&self, l: &Level, s: f64) -> bool {
         let top = if s.abs() <= self.trunk.neck {
@@ -527,10 +541,25 @@ impl BackModel {
             let p = o + d * t;
             self.trunk_height(p.x, p.y).map(|h| p.z - h)
         };
+        let clear = |t: f64| {
+            let p = o + d * t;
+            p.z > self.highest(&self.level(p.y))
+        };
         let step = 2.0;
         let mut prev: Option<(f64, f64)> = None;
+        // The last step, when the march passed it clear of the back without looking closer:
+        // the step before a crossing is looked at (the same steps, the same crossing).
+        let mut passed: Option<f64> = None;
         let mut t = t0;
         while t < t0 + 2.0 * (top + self.trunk.depth + 100.0) / -d.z {
+            if clear(t) {
+                passed = Some(t);
+                t += step;
+                continue;
+            }
+            if let Some(tp) = passed.take() {
+                prev = above(tp).map(|f| (tp, f));
+            }
             match (above(t), prev) {
                 (Some(f), Some((tp, fp))) if f <= 0.0 && fp > 0.0 => {
                     // Bisected until no number lies between (about 43 halvings of 2 mm at
