@@ -43,13 +43,20 @@ impl Spot {
         }
     }
 
+    /// A point's coordinates along the ellipse's axes over their semi-axes, by the sine and
+    /// cosine of its `angle`: inside where u² + v² < 1.
+    fn normalised(&self, (s, c): (f64, f64), col: f64, row: f64) -> (f64, f64) {
+        let (dx, dy) = (col - self.col, row - self.row);
+        (
+            (c * dx + s * dy) / self.semi_a,
+            (-s * dx + c * dy) / self.semi_b,
+        )
+    }
+
     /// Approximate signed distance (pixels) of a point from the ellipse's edge, negative inside:
     /// d = (ρ − 1)/|∇ρ| with ρ the ellipse's normalised radius; exact for circles.
     fn signed_distance(&self, col: f64, row: f64) -> f64 {
-        let (s, c) = self.angle.sin_cos();
-        let (dx, dy) = (col - self.col, row - self.row);
-        let u = (c * dx + s * dy) / self.semi_a;
-        let v = (-s * dx + c * dy) / self.semi_b;
+        let (u, v) = self.normalised(self.angle.sin_cos(), col, row);
         let rho = u.hypot(v);
         let grad = (u / self.semi_a).hypot(v / self.semi_b);
         if grad < 1e-12 {
@@ -198,12 +205,14 @@ fn coverage(spot: &Spot, col: f64, row: f64) -> f64 {
         return 0.0;
     }
     let step = 1.0 / SUPERSAMPLE as f64;
+    let turn = spot.angle.sin_cos();
     let mut inside = 0usize;
     for i in 0..SUPERSAMPLE {
         for j in 0..SUPERSAMPLE {
             let x = col - 0.5 + (i as f64 + 0.5) * step;
             let y = row - 0.5 + (j as f64 + 0.5) * step;
-            if spot.signed_distance(x, y) < 0.0 {
+            let (u, v) = spot.normalised(turn, x, y);
+            if u * u + v * v < 1.0 {
                 inside += 1;
             }
         }
