@@ -437,18 +437,22 @@ impl BackModel {
 
     /// The back's height n at (a, v) in the trunk frame (None off the back).
     fn trunk_height(&self, a: f64, v: f64) -> Option<f64> {
-        let l = self.level(v);
+        self.height_on(&self.level(v), a)
+    }
+
+    /// The back's height n at a on the section at its level (None off the back).
+    fn height_on(&self, l: &Level, a: f64) -> Option<f64> {
         let mut s = (a - l.shift) / l.cos;
         for _ in 0..30 {
-            let ((sa, _), (da, _)) = self.section(&l, s);
+            let ((sa, _), (da, _)) = self.section(l, s);
             let step = (sa - a) / da;
             s -= step;
             if step.abs() < 1e-10 {
                 break;
             }
         }
-        let ((sa, n), _) = self.section(&l, s);
-        ((sa - a).abs() < 1e-6 && self.on_trunk(&l, s)).then_some(n)
+        let ((sa, n), _) = self.section(l, s);
+        ((sa - a).abs() < 1e-6 && self.on_trunk(l, s)).then_some(n)
     }
 
     /// The placement: camera point = R (trunk point − centre) + (0, 0, −distance) + t.
@@ -541,9 +545,13 @@ impl BackModel {
             let p = o + d * t;
             self.trunk_height(p.x, p.y).map(|h| p.z - h)
         };
-        let clear = |t: f64| {
+        // The ray's height above the back at t, where it is not above the highest point of its
+        // level's section (there: None, without solving for the back's height).
+        let near = |t: f64| {
             let p = o + d * t;
-            p.z > self.highest(&self.level(p.y))
+            let l = self.level(p.y);
+            let clear = p.z > self.highest(&l);
+            (!clear).then(|| self.height_on(&l, p.x).map(|h| p.z - h))
         };
         let step = 2.0;
         let mut prev: Option<(f64, f64)> = None;
@@ -552,15 +560,15 @@ impl BackModel {
         let mut passed: Option<f64> = None;
         let mut t = t0;
         while t < t0 + 2.0 * (top + self.trunk.depth + 100.0) / -d.z {
-            if clear(t) {
+            let Some(here) = near(t) else {
                 passed = Some(t);
                 t += step;
                 continue;
-            }
+            };
             if let Some(tp) = passed.take() {
                 prev = above(tp).map(|f| (tp, f));
             }
-            match (above(t), prev) {
+            match (here, prev) {
                 (Some(f), Some((tp, fp))) if f <= 0.0 && fp > 0.0 => {
                     // Bisected until no number lies between (about 43 halvings of 2 mm at
                     // 1500 mm).
