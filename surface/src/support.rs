@@ -3,6 +3,11 @@
 
 use nalgebra::Vector3;
 
+/// How near a cell's edge (in cells) a point counts as on it. The levels lie a whole number of
+/// rows apart from the first measured row's lower edge, and so on row edges: without it, which
+/// row a level's run came from hung on rounding.
+pub(crate) const EDGE: f64 = 1e-9;
+
 /// A mask of cells `cell` mm square from `origin`.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Support {
@@ -56,9 +61,11 @@ impl Support {
         )
     }
 
+    /// The cell holding (a, v); on a cell's edge (to rounding: [`EDGE`]), the cell above it or
+    /// to its right.
     fn index(&self, a: f64, v: f64) -> Option<(usize, usize)> {
-        let i = ((a - self.origin[0]) / self.cell).floor();
-        let j = ((v - self.origin[1]) / self.cell).floor();
+        let i = ((a - self.origin[0]) / self.cell + EDGE).floor();
+        let j = ((v - self.origin[1]) / self.cell + EDGE).floor();
         let inside = i >= 0.0 && j >= 0.0;
         let (i, j) = (i as usize, j as usize);
         (inside && i < self.size[0] && j < self.size[1]).then_some((i, j))
@@ -108,5 +115,27 @@ impl Support {
         let last = (0..self.size[1]).rev().find(filled)?;
         let v = |j: usize| self.origin[1] + j as f64 * self.cell;
         Some((v(first), v(last + 1)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A level on a row's edge takes the row above, whatever the rounding: 0.3 / 0.1 is
+    /// 2.9999999999999996, and without [`EDGE`] the level at 0.3 found row 2's run, not row 3's.
+    #[test]
+    fn a_level_on_a_row_edge_takes_the_row_above() {
+        let mut support = Support::new([0.0, 0.0], [1.0, 1.0], 0.1);
+        // Row 3 (v 0.3 to 0.4), columns 2 to 5: a triangle pair covering their centres.
+        let p = |a: f64, v: f64| Vector3::new(a, v, 0.0);
+        support.fill([p(0.2, 0.3), p(0.6, 0.3), p(0.6, 0.4)]);
+        support.fill([p(0.2, 0.3), p(0.6, 0.4), p(0.2, 0.4)]);
+        let (lo, hi) = support.longest_run(0.3).expect("row 3 is measured");
+        assert!(
+            (lo - 0.2).abs() < 1e-12 && (hi - 0.6).abs() < 1e-12,
+            "{lo} {hi}"
+        );
+        assert!(support.contains(0.25, 0.3) && !support.contains(0.25, 0.3 - 1e-6));
     }
 }
