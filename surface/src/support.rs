@@ -3,10 +3,11 @@
 
 use nalgebra::Vector3;
 
-/// How near a cell's edge (in cells) a point counts as on it. The levels lie a whole number of
-/// rows apart from the first measured row's lower edge, and so on row edges: without it, which
-/// row a level's run came from hung on rounding.
-pub(crate) const EDGE: f64 = 1e-9;
+/// How near an edge a point counts as on it, in cells (or, for the levels' count, in
+/// spacings). The levels lie a whole number of rows apart from the first measured row's lower
+/// edge, and so on row edges: without it, which row a level's run came from, and whether the
+/// top level was kept, hung on rounding.
+const EDGE: f64 = 1e-9;
 
 /// A mask of cells `cell` mm square from `origin`.
 #[derive(Debug, Clone, PartialEq)]
@@ -107,8 +108,19 @@ impl Support {
         })
     }
 
+    /// The levels `spacing` apart from the first measured row's lower edge, a spacing inside
+    /// both ends of the measured rows. For one frame the spacing is four rows, so each level
+    /// lies on a row's edge and takes the row above it ([`EDGE`]).
+    pub fn levels(&self, spacing: f64) -> Vec<f64> {
+        let Some((v0, v1)) = self.rows() else {
+            return Vec::new();
+        };
+        let count = ((v1 - v0) / spacing + EDGE).floor() as usize;
+        (1..count).map(|k| v0 + k as f64 * spacing).collect()
+    }
+
     /// The range of v over which the mask holds anything.
-    pub fn rows(&self) -> Option<(f64, f64)> {
+    fn rows(&self) -> Option<(f64, f64)> {
         let filled =
             |j: &usize| self.mask[self.size[0] * j..self.size[0] * (j + 1)].contains(&true);
         let first = (0..self.size[1]).find(filled)?;

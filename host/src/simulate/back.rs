@@ -541,17 +541,21 @@ impl BackModel {
         }
         let top = 2.0 * self.trunk.kyphosis + 120.0;
         let t0 = ((top - o.z) / d.z).max(0.0);
-        let above = |t: f64| {
+        // The ray's point at t, its level, and its height above the back there.
+        let at = |t: f64| {
             let p = o + d * t;
-            self.trunk_height(p.x, p.y).map(|h| p.z - h)
+            (p, self.level(p.y))
+        };
+        let over = |p: Vector3<f64>, l: &Level| self.height_on(l, p.x).map(|h| p.z - h);
+        let above = |t: f64| {
+            let (p, l) = at(t);
+            over(p, &l)
         };
         // The ray's height above the back at t, where it is not above the highest point of its
         // level's section (there: None, without solving for the back's height).
         let near = |t: f64| {
-            let p = o + d * t;
-            let l = self.level(p.y);
-            let clear = p.z > self.highest(&l);
-            (!clear).then(|| self.height_on(&l, p.x).map(|h| p.z - h))
+            let (p, l) = at(t);
+            (p.z <= self.highest(&l)).then(|| over(p, &l))
         };
         let step = 2.0;
         let mut prev: Option<(f64, f64)> = None;

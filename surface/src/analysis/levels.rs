@@ -6,7 +6,7 @@ use crate::fit::Fit;
 use crate::median;
 use crate::scoliometer::resting_line;
 use crate::spline::D;
-use crate::support::{Support, EDGE};
+use crate::support::Support;
 use crate::symmetry::{asymmetry, coarse, symmetry_at, Candidate, Symmetry};
 use crate::SurfaceError;
 use nalgebra::DVector;
@@ -233,17 +233,13 @@ impl Measured<'_> {
         g
     }
 
-    /// The levels: one dot spacing apart, where the trunk is at least MIN_WIDTH of its
-    /// median width, with the run of measured surface at each. For one frame the spacing is
-    /// four rows of the support, so each level lies on a row's edge, and its run is the row
-    /// above's ([`EDGE`]; by rounding, it was the row above or below, and the top level was
-    /// kept or not: five of 30 draws of a simulated back changed their levels for a
-    /// sub-nanometre change of the dots).
+    /// The levels: one dot spacing apart ([`Support::levels`]), where the trunk is at least
+    /// MIN_WIDTH of its median width, with the run of measured surface at each. (Each level
+    /// on a row's edge took the row above or below by rounding, and the top level was kept or
+    /// not: five of 30 draws of a simulated back changed their levels for a sub-nanometre
+    /// change of the dots.)
     fn levels(&self, spacing: f64) -> Result<(Vec<Run>, f64), SurfaceError> {
-        let (v0, v1) = self.support.rows().ok_or(SurfaceError::NoLevels)?;
-        let count = ((v1 - v0) / spacing + EDGE).floor() as usize;
-        let runs: Vec<Run> = (1..count)
-            .map(|k| v0 + k as f64 * spacing)
+        let runs: Vec<Run> = (self.support.levels(spacing).into_iter())
             .filter_map(|v| self.support.longest_run(v).map(|r| (v, r)))
             .collect();
         let mut widths: Vec<f64> = runs.iter().map(|(_, (lo, hi))| hi - lo).collect();
@@ -513,22 +509,20 @@ impl Measured<'_> {
 /// +15.2 ± 4.7° where the others read −9.0 to −9.7° (r(scoliometer, Cobb) 0.57-0.58 on the two
 /// placements; 0.64-0.69 without the pairs).
 fn chained(found: Vec<Found>, spacing: f64) -> Vec<Found> {
-    // Each level's stretch: the levels each within 1.5 spacings of the last.
-    let mut stretch = vec![0; found.len()];
-    for i in 1..found.len() {
-        stretch[i] = stretch[i - 1] + usize::from(found[i].v - found[i - 1].v >= 1.5 * spacing);
-    }
-    let size = |s: usize| stretch.iter().filter(|&&t| t == s).count();
-    let last = stretch.last().copied().unwrap_or(0);
-    let held = |s: usize| match size(s) {
-        1 => false,
-        2 => s != 0 && s != last,
-        _ => true,
-    };
+    // The stretches: levels each within 1.5 spacings of the last.
+    let stretches: Vec<usize> = found
+        .chunk_by(|p, q| q.v - p.v < 1.5 * spacing)
+        .map(<[Found]>::len)
+        .collect();
+    let n = stretches.len();
+    let held = stretches.iter().enumerate().flat_map(|(k, &len)| {
+        let inner = k > 0 && k + 1 < n;
+        std::iter::repeat_n(len > 2 || (len == 2 && inner), len)
+    });
     found
         .into_iter()
-        .zip(&stretch)
-        .filter_map(|(f, &s)| held(s).then_some(f))
+        .zip(held)
+        .filter_map(|(f, keep)| keep.then_some(f))
         .collect()
 }
 
