@@ -217,7 +217,7 @@ impl Measured<'_> {
                         self.value(x, l.v, D::S) - self.value(mirror, l.v, D::S),
                     ));
                     grads.push(g);
-                    sampling.push(2.0 * self.value(mirror, l.v, D::A) * l.x.sampling);
+                    sampling.push(2.0 * self.value(mirror, l.v, D::A) * l.x.spread());
                 } else {
                     asym.push(None);
                 }
@@ -296,6 +296,8 @@ impl Measured<'_> {
 
     /// The value of largest magnitude (signed) with its gradient, its sampling term holding
     /// what choosing it among the levels adds ([`selection`]); `sigma`: each value's σ.
+    /// Where the line is ambiguous, that term also holds [`selection::ambiguity`], in place
+    /// of its level's rival.
     fn largest(&self, vars: &[&Var], sigma: &[f64]) -> Var {
         let values: Vec<f64> = vars.iter().map(|v| v.value).collect();
         let (j, added) = selection::largest(&values, sigma, |at| {
@@ -303,8 +305,11 @@ impl Measured<'_> {
             self.fit.covariance(&g)
         })
         .expect("at least one level");
+        let rivals: Vec<Option<f64>> = vars.iter().map(|v| v.rival).collect();
+        let ambiguity = selection::ambiguity(&values, &rivals);
         Var {
-            sampling: vars[j].sampling.hypot(added),
+            sampling: vars[j].sampling.hypot(added).hypot(ambiguity),
+            rival: None,
             ..vars[j].clone()
         }
     }

@@ -56,26 +56,29 @@ pub(super) struct Measured<'a> {
 }
 
 /// A value with its gradient over the fit's unknowns, its sampling term (σ of what the
-/// detail between the dots moves it by: [`Sampling`]) and its registration term: what the
+/// detail between the dots moves it by: [`Sampling`]), its registration term: what the
 /// frames' registration moves it by, one error shared by every value that turns with the
 /// surface (the σ of its share, signed, so that the terms of values combined add, not in
-/// quadrature).
+/// quadrature), and its rival: the value where the symmetry line may as well lie elsewhere
+/// ([`Var::or`]).
 #[derive(Clone)]
 pub(super) struct Var {
     pub(super) value: f64,
     pub(super) gradient: DVector<f64>,
     pub(super) sampling: f64,
     pub(super) registration: f64,
+    pub(super) rival: Option<f64>,
 }
 
 impl Var {
-    /// A value without a registration term.
+    /// A value without a registration term or a rival.
     pub(super) fn new(value: f64, gradient: DVector<f64>, sampling: f64) -> Self {
         Self {
             value,
             gradient,
             sampling,
             registration: 0.0,
+            rival: None,
         }
     }
 
@@ -87,9 +90,16 @@ impl Var {
         }
     }
 
-    /// The value's σ beside the fit's: its sampling and registration terms.
+    /// The value's σ beside the fit's: its spread and registration terms.
     pub(super) fn own(&self) -> f64 {
-        self.sampling.hypot(self.registration)
+        self.spread().hypot(self.registration)
+    }
+
+    /// σ of its sampling term and its rival's: the value is one of two, so their
+    /// half-difference, in quadrature.
+    pub(super) fn spread(&self) -> f64 {
+        let either = self.rival.map_or(0.0, |rival| 0.5 * (self.value - rival));
+        self.sampling.hypot(either)
     }
 
     /// atan of this slope.
@@ -100,21 +110,21 @@ impl Var {
             gradient: self.gradient * d,
             sampling: self.sampling * d,
             registration: self.registration * d,
+            rival: self.rival.map(f64::atan),
         }
     }
 
     /// This value where it may as well be `rival`'s (the symmetry line ambiguous): its
-    /// sampling term holds the two's half-difference (the σ of a value that is one of the
-    /// two), in quadrature.
+    /// spread holds the two's half-difference ([`Var::spread`]).
     fn or(self, rival: &Var) -> Self {
         Self {
-            sampling: self.sampling.hypot(0.5 * (self.value - rival.value)),
+            rival: Some(rival.value),
             ..self
         }
     }
 
-    /// Σ c_k var_k over distinct vars, their sampling errors independent, their registration
-    /// one.
+    /// Σ c_k var_k over distinct vars, their spreads independent, their registration one; a
+    /// sum has no rival (its terms' are in its spread).
     pub(super) fn sum(terms: &[(&Var, f64)]) -> Self {
         let mut gradient = DVector::zeros(terms[0].0.gradient.len());
         for (var, c) in terms {
@@ -125,10 +135,11 @@ impl Var {
             gradient,
             sampling: terms
                 .iter()
-                .map(|(var, c)| (c * var.sampling).powi(2))
+                .map(|(var, c)| (c * var.spread()).powi(2))
                 .sum::<f64>()
                 .sqrt(),
             registration: terms.iter().map(|(var, c)| c * var.registration).sum(),
+            rival: None,
         }
     }
 }
@@ -348,7 +359,8 @@ impl Measured<'_> {
     /// flagged, its largest rotation 19.8 ± 0.3° where the others read 25.2-25.4° (and with the
     /// levels placed half a row higher, its line changed between placements by 14.5 σ RMS; now
     /// 0.4). With it, one placement of the 32 takes that axis over 11 levels, each flagged with
-    /// its rival (σ 19-25 mm).
+    /// its rival (σ 19-25 mm), and the largest rotation, 19.9°, holds them: ± 2.7°
+    /// ([`super::selection::ambiguity`]).
     fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64, spacing: f64) -> Vec<Found> {
         let w = width / 4.0;
         let margin = self.fit.grid.step;

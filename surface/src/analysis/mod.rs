@@ -282,7 +282,9 @@ pub struct BackAnalysis {
     /// level's with what choosing it among levels within the noise of it adds (the analysis'
     /// `selection`), and describes its magnitude: where levels of opposite sign are within the
     /// noise of each other, which one is the largest, and so the sign, is chance
-    /// ([`crate::compare()`] compares magnitudes).
+    /// ([`crate::compare()`] compares magnitudes). Where the line is ambiguous it holds, in
+    /// place of its level's rival, half the range of the largest magnitude with each
+    /// ambiguous level at its own reading or its rival's ([`Level::symmetry_x_rival`]).
     pub rotation_max_deg: f64,
     /// Its σ.
     pub rotation_max_deg_sigma: f64,

@@ -25,6 +25,9 @@
 //! 0.77-1.02 and 0.59-0.90 → 0.45-0.82 (a curve's deviation already held more than its error).
 //! Through the whole image path, a straight back's largest asymmetry 2.12 → 1.08 standing and
 //! 2.05 → 1.01 bent forward.
+//!
+//! Where the symmetry line is ambiguous, the largest also lies anywhere in the range its
+//! levels' rivals give it ([`ambiguity`]).
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use rand::SeedableRng;
@@ -71,6 +74,29 @@ pub(super) fn largest(
         c[(competing[p], competing[q])] * sign(competing[p]) * sign(competing[q])
     });
     Some((j, expected_largest(c)))
+}
+
+/// Half the range of the largest magnitude among `values` where each that has a rival
+/// (`rivals`, the symmetry line ambiguous there: [`super::levels::Var::or`]) may as well be
+/// it: the largest read lies in that range, one of its ends or between, whichever axis each
+/// ambiguous level takes. This, not the largest's own level's rival, is what the line's
+/// ambiguity adds to its σ. On the real backs (15 mm, 32 lattice placements each): patient 10
+/// standing, on one placement the line followed a second axis over 11 levels, each flagged
+/// (σ 19-26 mm), and the largest rotation, 19.9° on one of them, was ± 0.9° (its own rival
+/// reading near it) where the other placements read 24.8-25.4°; with every level at its
+/// rival it reads 25.2°, and the largest is now 19.9 ± 2.7°. Where the largest level is
+/// ambiguous but a clear one reads nearly as much, its own rival overstated the σ: the same
+/// back on the aligned lattice 25.3 ± 2.1° (now ± 0.5°), and patient 5 bent forward, its scan
+/// mirrored, −24.7 ± 9.0° (now ± 0.7°; unmirrored +24.4 ± 0.8°). Over the 32 placements,
+/// the RMS of each largest's departure from its back's median, over its σ, went from 1.59 to
+/// 1.56 standing and 1.09 to 1.08 bent forward (patient 10: 1.13 to 0.55 and 1.60 to 1.35).
+pub(super) fn ambiguity(values: &[f64], rivals: &[Option<f64>]) -> f64 {
+    let either = values.iter().zip(rivals).map(|(v, r)| {
+        let r = r.unwrap_or(*v);
+        (v.abs().min(r.abs()), v.abs().max(r.abs()))
+    });
+    let (least, most) = either.fold((0.0, 0.0), |(a, b), (l, m)| (l.max(a), m.max(b)));
+    0.5 * (most - least)
 }
 
 /// E[max_k ε_k] for ε ~ N(0, c), by Monte Carlo.
@@ -121,5 +147,20 @@ mod tests {
         .unwrap();
         assert!(added.abs() < 0.07, "{added}");
         assert_eq!(independent(&[]), None);
+    }
+
+    #[test]
+    fn ambiguous_levels_widen_the_largest_by_their_range() {
+        // A clear 19.9 above levels reading little whose rivals read more: 19.9 to 25.3.
+        let values = [19.9, 19.5, 5.0, -3.0];
+        let half = ambiguity(&values, &[None, None, Some(25.3), Some(-24.0)]);
+        assert!((half - 2.7).abs() < 1e-12, "{half}");
+        // The largest ambiguous, its rival reading little: 19.5 to 19.9, either sign.
+        let half = ambiguity(&values, &[Some(-2.0), None, None, None]);
+        assert!((half - 0.2).abs() < 1e-12, "{half}");
+        // Two ambiguous, each the largest on one axis: 5 to 26.
+        let half = ambiguity(&[5.0, 3.0], &[Some(26.0), Some(-5.5)]);
+        assert!((half - 10.5).abs() < 1e-12, "{half}");
+        assert_eq!(ambiguity(&values, &[None; 4]), 0.0);
     }
 }
