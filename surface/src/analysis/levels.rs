@@ -359,7 +359,7 @@ impl Measured<'_> {
     /// flagged, its largest rotation 19.8 ± 0.3° where the others read 25.2-25.4° (and with the
     /// levels placed half a row higher, its line changed between placements by 14.5 σ RMS; now
     /// 0.4). With it, one placement of the 32 takes that axis over 11 levels, each flagged with
-    /// its rival (σ 19-25 mm), and the largest rotation, 19.9°, holds them: ± 2.7°
+    /// its rival (σ 19-26 mm), and the largest rotation, 19.9°, holds them: ± 2.7°
     /// ([`super::selection::ambiguity`]).
     fn symmetry_line(&self, runs: &[(f64, (f64, f64))], width: f64, spacing: f64) -> Vec<Found> {
         let w = width / 4.0;

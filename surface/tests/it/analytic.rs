@@ -381,8 +381,8 @@ fn a_top_edge_cut_obliquely() {
 /// the σ of the line and of the rotation hold half the two grooves' difference. The largest
 /// rotation's magnitude is the same about either groove, and so is its σ: ambiguous or not,
 /// it reads the groove's within 3 σ, σ under 1° (measured 6.68-6.86 ± 0.33-0.36° against
-/// 6.45°; with the largest level's own rival, 6.7° on the three ambiguous scans). On a trunk
-/// whose sections are not arcs (this file's back) no level is ambiguous.
+/// 6.45°; with the largest level's own rival its σ was 6.7° on the three ambiguous scans).
+/// On a trunk whose sections are not arcs (this file's back) no level is ambiguous.
 #[test]
 fn two_mirror_axes_make_the_line_ambiguous() {
     const R: f64 = 400.0;
