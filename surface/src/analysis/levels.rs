@@ -250,7 +250,10 @@ impl Measured<'_> {
     /// not: five of 30 draws of a simulated back changed their levels for a sub-nanometre
     /// change of the dots.)
     fn levels(&self, spacing: f64) -> Result<(Vec<Run>, f64), SurfaceError> {
-        let runs: Vec<Run> = (self.support.levels(spacing).into_iter())
+        let runs: Vec<Run> = self
+            .support
+            .levels(spacing)
+            .into_iter()
             .filter_map(|v| self.support.longest_run(v).map(|r| (v, r)))
             .collect();
         let mut widths: Vec<f64> = runs.iter().map(|(_, (lo, hi))| hi - lo).collect();
